@@ -1,0 +1,30 @@
+//! Scene inputs for the NeRF and NSFF crates: cameras, rays, images and one parser per format.
+//!
+//! This crate has no burn dependency, so parsers and the generator build and test in seconds;
+//! `nerf-core` re-exports the geometry modules as part of the shared rendering crate.
+
+pub mod blender;
+pub mod camera;
+pub mod colmap;
+pub mod dataset;
+pub mod error;
+pub mod image;
+pub mod llff;
+pub mod load;
+pub mod math;
+pub mod ndc;
+pub mod npy;
+pub mod npz;
+pub mod options;
+pub mod rays;
+pub mod synth;
+pub mod tiny_npz;
+pub mod video;
+
+pub use camera::{AxisConvention, Camera, Intrinsics, Pose};
+pub use dataset::{Dataset, FlowField, Format, RayBatch, SceneKind, VideoPriors, View};
+pub use error::{DataError, Result};
+pub use image::Image;
+pub use ndc::Ndc;
+pub use rays::Rays;
+pub use options::LoadOptions;

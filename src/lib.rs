@@ -1,0 +1,1 @@
+//! Host package for workspace tests and benches.
