@@ -1,1 +1,17 @@
-pub fn hello() {}
+//! The shared volume-rendering crate under the `nerf` and `nsff` crates.
+//!
+//! - geometry (re-exported from `nerf-data`): [`camera`], [`rays`], [`ndc`]
+//! - samplers: where to look along a ray ([`sampler`]), and the [`occupancy`] grid that lets the
+//!   marcher skip empty space
+//! - renderers: [`composite`] turns samples into pixels
+//! - fields' building blocks: [`encoding`] (positional, hash grid, spherical harmonics)
+//! - [`host_op`]: fused CPU kernels with hand-written backward passes, usable as burn ops
+//! - [`metrics`]: PSNR and SSIM
+
+pub mod composite;
+pub mod device;
+pub mod encoding;
+pub mod host_op;
+pub mod optim;
+
+pub use nerf_data::{camera, ndc, rays};

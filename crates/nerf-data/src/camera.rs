@@ -166,7 +166,11 @@ impl Pose {
     }
 
     pub fn is_finite(&self) -> bool {
-        self.rotation.iter().flatten().chain(self.translation.iter()).all(|v| v.is_finite())
+        self.rotation
+            .iter()
+            .flatten()
+            .chain(self.translation.iter())
+            .all(|v| v.is_finite())
     }
 
     /// Camera-space point to world.
@@ -239,7 +243,11 @@ mod tests {
     #[test]
     fn conventions_round_trip() {
         let pose = Pose::look_at([1.0, 2.0, 3.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
-        for conv in [AxisConvention::OpenGl, AxisConvention::OpenCv, AxisConvention::LlffStored] {
+        for conv in [
+            AxisConvention::OpenGl,
+            AxisConvention::OpenCv,
+            AxisConvention::LlffStored,
+        ] {
             let back = Pose::from_c2w(pose.to_c2w(conv), conv);
             for r in 0..3 {
                 for c in 0..3 {

@@ -89,6 +89,9 @@ pub struct Dataset {
     /// Ray bounds in the ray parameter (depth; NDC t for forward-facing scenes).
     pub near: f32,
     pub far: f32,
+    /// Depth range of the content in world units (equal to near/far except for NDC scenes, where
+    /// near/far are 0 and 1). Render paths (spiral focus depth) use it.
+    pub depth_bounds: [f32; 2],
     /// Colour composited behind the scene; `None` for real captures (no compositing).
     pub background: Option<[f32; 3]>,
     /// Set for forward-facing scenes: rays are warped to NDC before sampling.
@@ -131,7 +134,13 @@ impl Dataset {
 
     /// `n` rays drawn uniformly over all pixels of the given views. With `precrop` in (0, 1),
     /// pixels come only from the central `precrop` fraction of each image (NeRF's precrop).
-    pub fn sample_batch(&self, views: &[usize], n: usize, precrop: Option<f32>, rng: &mut impl Rng) -> RayBatch {
+    pub fn sample_batch(
+        &self,
+        views: &[usize],
+        n: usize,
+        precrop: Option<f32>,
+        rng: &mut impl Rng,
+    ) -> RayBatch {
         let mut batch = RayBatch {
             rays: Rays::with_capacity(n),
             rgb: Vec::with_capacity(3 * n),
@@ -184,7 +193,8 @@ impl Dataset {
         use crate::error::DataError;
         for (i, v) in self.views.iter().enumerate() {
             let k = &v.camera.intrinsics;
-            k.validate().map_err(|m| DataError::invalid(&self.source, format!("view {i} ({}): {m}", v.name)))?;
+            k.validate()
+                .map_err(|m| DataError::invalid(&self.source, format!("view {i} ({}): {m}", v.name)))?;
             if (v.image.width, v.image.height) != (k.width, k.height) {
                 return Err(DataError::invalid(
                     &self.source,
@@ -195,7 +205,10 @@ impl Dataset {
                 ));
             }
             if !v.camera.pose.is_finite() {
-                return Err(DataError::invalid(&self.source, format!("view {i} ({}): pose has NaN/Inf", v.name)));
+                return Err(DataError::invalid(
+                    &self.source,
+                    format!("view {i} ({}): pose has NaN/Inf", v.name),
+                ));
             }
             if let Some(t) = v.time
                 && !(0.0..=1.0).contains(&t)

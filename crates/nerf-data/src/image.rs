@@ -25,7 +25,12 @@ impl Image {
 
     pub fn from_data(width: u32, height: u32, channels: u32, data: Vec<f32>) -> Self {
         assert_eq!(data.len(), width as usize * height as usize * channels as usize);
-        Image { width, height, channels, data }
+        Image {
+            width,
+            height,
+            channels,
+            data,
+        }
     }
 
     pub fn num_pixels(&self) -> usize {
@@ -45,10 +50,20 @@ impl Image {
         let (width, height) = (img.width(), img.height());
         if img.color().has_alpha() {
             let rgba = img.into_rgba32f();
-            Ok(Image { width, height, channels: 4, data: rgba.into_raw() })
+            Ok(Image {
+                width,
+                height,
+                channels: 4,
+                data: rgba.into_raw(),
+            })
         } else {
             let rgb = img.into_rgb32f();
-            Ok(Image { width, height, channels: 3, data: rgb.into_raw() })
+            Ok(Image {
+                width,
+                height,
+                channels: 3,
+                data: rgb.into_raw(),
+            })
         }
     }
 
@@ -104,7 +119,10 @@ impl Image {
         if width == self.width && height == self.height {
             return self.clone();
         }
-        if self.width % width == 0 && self.height % height == 0 && self.width / width == self.height / height {
+        if self.width.is_multiple_of(width)
+            && self.height.is_multiple_of(height)
+            && self.width / width == self.height / height
+        {
             return self.downscale(self.width / width);
         }
         let c = self.channels as usize;
@@ -155,7 +173,12 @@ impl Image {
             1 => image::ExtendedColorType::L8,
             3 => image::ExtendedColorType::Rgb8,
             4 => image::ExtendedColorType::Rgba8,
-            c => return Err(DataError::invalid(path, format!("cannot save a {c}-channel image as PNG"))),
+            c => {
+                return Err(DataError::invalid(
+                    path,
+                    format!("cannot save a {c}-channel image as PNG"),
+                ));
+            }
         };
         let mut bytes = Vec::new();
         image::write_buffer_with_format(
@@ -179,9 +202,15 @@ pub fn to_u8(v: f32) -> u8 {
 /// reader never sees a half-written file and a crash leaves the old file intact.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     use std::io::Write;
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir).map_err(|e| DataError::io(dir, e))?;
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
     let result = (|| {
         let mut f = std::fs::File::create(&tmp)?;

@@ -26,5 +26,15 @@ pub use dataset::{Dataset, FlowField, Format, RayBatch, SceneKind, VideoPriors, 
 pub use error::{DataError, Result};
 pub use image::Image;
 pub use ndc::Ndc;
-pub use rays::Rays;
 pub use options::LoadOptions;
+pub use rays::Rays;
+
+/// The shared real datasets (`../shared/data` beside the project root), or `None` when absent.
+/// `NERF_SHARED_DATA` overrides the location. Tests and benches skip with a message when absent.
+pub fn shared_data() -> Option<std::path::PathBuf> {
+    if let Some(p) = std::env::var_os("NERF_SHARED_DATA") {
+        return Some(p.into());
+    }
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
+    root.is_dir().then(|| root.canonicalize().unwrap_or(root))
+}

@@ -76,10 +76,19 @@ mod tests {
 
     #[test]
     fn ndc_ray_passes_through_the_ndc_image_of_world_points() {
-        let ndc = Ndc { fx: 400.0, fy: 420.0, width: 504.0, height: 378.0, near: 1.0 };
+        let ndc = Ndc {
+            fx: 400.0,
+            fy: 420.0,
+            width: 504.0,
+            height: 378.0,
+            near: 1.0,
+        };
         let (o, d) = ([0.1, -0.2, 0.3], [0.2, 0.1, -1.0]);
         let (on, dn) = ndc.ray(o, d);
-        assert!((on[2] + 1.0).abs() < 1e-12, "origin on the near plane: z_ndc = -1");
+        assert!(
+            (on[2] + 1.0).abs() < 1e-12,
+            "origin on the near plane: z_ndc = -1"
+        );
         for s in [1.5, 3.0, 10.0] {
             let p = [o[0] + s * d[0], o[1] + s * d[1], o[2] + s * d[2]];
             let q = ndc.from_world(p);

@@ -40,30 +40,42 @@ pub fn parse_npy(bytes: &[u8], origin: &Path) -> Result<NpyArray> {
             if bytes.len() < 12 {
                 return Err(bad("truncated .npy header".into()));
             }
-            (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12)
+            (
+                u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+                12,
+            )
         }
         v => return Err(bad(format!("unsupported .npy format version {v}"))),
     };
     let end = start + header_len;
     if bytes.len() < end {
-        return Err(bad(format!("truncated .npy header: {} of {end} bytes", bytes.len())));
+        return Err(bad(format!(
+            "truncated .npy header: {} of {end} bytes",
+            bytes.len()
+        )));
     }
     let header = std::str::from_utf8(&bytes[start..end]).map_err(|_| bad("header is not text".into()))?;
-    let dtype = header_field(header, "descr").ok_or_else(|| bad(format!("header has no 'descr': {header}")))?;
+    let dtype =
+        header_field(header, "descr").ok_or_else(|| bad(format!("header has no 'descr': {header}")))?;
     let dtype = dtype.trim_matches(|c| c == '\'' || c == '"').to_string();
     if header_field(header, "fortran_order").is_some_and(|v| v.starts_with("True")) {
         return Err(bad("Fortran-order arrays are not supported".into()));
     }
-    let shape_text = header_field(header, "shape").ok_or_else(|| bad(format!("header has no 'shape': {header}")))?;
+    let shape_text =
+        header_field(header, "shape").ok_or_else(|| bad(format!("header has no 'shape': {header}")))?;
     let shape: Vec<usize> = shape_text
         .trim_matches(|c| c == '(' || c == ')')
         .split(',')
         .map(str::trim)
         .filter(|s| !s.is_empty())
-        .map(|s| s.parse::<usize>().map_err(|_| bad(format!("bad shape {shape_text}"))))
+        .map(|s| {
+            s.parse::<usize>()
+                .map_err(|_| bad(format!("bad shape {shape_text}")))
+        })
         .collect::<Result<_>>()?;
     let count: usize = shape.iter().product();
-    let (little, kind, size) = parse_dtype(&dtype).ok_or_else(|| bad(format!("unsupported dtype {dtype}")))?;
+    let (little, kind, size) =
+        parse_dtype(&dtype).ok_or_else(|| bad(format!("unsupported dtype {dtype}")))?;
     let payload = &bytes[end..];
     let need = count * size;
     if payload.len() < need {
@@ -80,7 +92,9 @@ pub fn parse_npy(bytes: &[u8], origin: &Path) -> Result<NpyArray> {
 }
 
 fn header_field<'a>(header: &'a str, key: &str) -> Option<&'a str> {
-    let pos = header.find(&format!("'{key}'")).or_else(|| header.find(&format!("\"{key}\"")))?;
+    let pos = header
+        .find(&format!("'{key}'"))
+        .or_else(|| header.find(&format!("\"{key}\"")))?;
     let rest = header[pos + key.len() + 2..].trim_start();
     let rest = rest.strip_prefix(':')?.trim_start();
     if rest.starts_with('(') {
@@ -129,7 +143,10 @@ fn decode(c: &[u8], little: bool, kind: char) -> f64 {
 pub fn encode_npy(shape: &[usize], data: &[f64], f32_storage: bool) -> Vec<u8> {
     let shape_text = match shape.len() {
         1 => format!("({},)", shape[0]),
-        _ => format!("({})", shape.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(", ")),
+        _ => format!(
+            "({})",
+            shape.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(", ")
+        ),
     };
     let descr = if f32_storage { "<f4" } else { "<f8" };
     let mut header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape_text}, }}");
@@ -171,9 +188,13 @@ mod tests {
         assert_eq!(arr.data, data);
         let f32bytes = encode_npy(&[12], &data, true);
         assert_eq!(parse_npy(&f32bytes, Path::new("b.npy")).unwrap().data, data);
-        let err = parse_npy(&bytes[..bytes.len() - 3], Path::new("a.npy")).unwrap_err().to_string();
+        let err = parse_npy(&bytes[..bytes.len() - 3], Path::new("a.npy"))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("a.npy") && err.contains("truncated"), "{err}");
-        let err = parse_npy(b"hello world", Path::new("c.npy")).unwrap_err().to_string();
+        let err = parse_npy(b"hello world", Path::new("c.npy"))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("c.npy") && err.contains("magic"), "{err}");
     }
 }

@@ -37,13 +37,19 @@ pub fn read_zip(bytes: &[u8], path: &Path) -> Result<Vec<(String, Vec<u8>)>> {
         .rev()
         .take(65_557)
         .find(|&o| u32_at(bytes, o) == Some(0x0605_4b50))
-        .ok_or_else(|| bad("not a zip/npz archive, or truncated: end-of-central-directory record missing".into()))?;
+        .ok_or_else(|| {
+            bad("not a zip/npz archive, or truncated: end-of-central-directory record missing".into())
+        })?;
     let count = u16_at(bytes, eocd + 10).unwrap_or(0) as usize;
     let cd_offset = u32_at(bytes, eocd + 16).unwrap_or(0) as usize;
     let mut entries = Vec::with_capacity(count);
     let mut o = cd_offset;
     for k in 0..count {
-        let trunc = || bad(format!("truncated central directory at byte {o} (entry {k} of {count})"));
+        let trunc = || {
+            bad(format!(
+                "truncated central directory at byte {o} (entry {k} of {count})"
+            ))
+        };
         if u32_at(bytes, o).ok_or_else(trunc)? != 0x0201_4b50 {
             return Err(bad(format!("corrupt central directory entry at byte {o}")));
         }
@@ -69,7 +75,11 @@ pub fn read_zip(bytes: &[u8], path: &Path) -> Result<Vec<(String, Vec<u8>)>> {
         let lextra = u16_at(bytes, local + 28).unwrap_or(0) as usize;
         let start = local + 30 + lname + lextra;
         let raw = bytes.get(start..start + csize).ok_or_else(|| {
-            bad(format!("entry {name}: truncated, data needs bytes {start}..{} of {}", start + csize, bytes.len()))
+            bad(format!(
+                "entry {name}: truncated, data needs bytes {start}..{} of {}",
+                start + csize,
+                bytes.len()
+            ))
         })?;
         let data = match method {
             0 => raw.to_vec(),
@@ -78,7 +88,10 @@ pub fn read_zip(bytes: &[u8], path: &Path) -> Result<Vec<(String, Vec<u8>)>> {
             m => return Err(bad(format!("entry {name}: unsupported compression method {m}"))),
         };
         if data.len() != usize_ {
-            return Err(bad(format!("entry {name}: expected {usize_} bytes, got {}", data.len())));
+            return Err(bad(format!(
+                "entry {name}: expected {usize_} bytes, got {}",
+                data.len()
+            )));
         }
         if crc32(&data) != crc {
             return Err(bad(format!("entry {name}: CRC mismatch, the archive is corrupt")));
@@ -96,7 +109,11 @@ pub fn crc32(data: &[u8]) -> u32 {
         for (i, e) in t.iter_mut().enumerate() {
             let mut c = i as u32;
             for _ in 0..8 {
-                c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
+                c = if c & 1 != 0 {
+                    0xEDB8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
             }
             *e = c;
         }
@@ -176,7 +193,9 @@ mod tests {
             let zip = write_zip(&[("a.npy", &a)], deflate);
             let entries = read_zip(&zip, Path::new("x.npz")).unwrap();
             assert_eq!(entries, vec![("a.npy".to_string(), a.clone())]);
-            let err = read_zip(&zip[..zip.len() / 2], Path::new("x.npz")).unwrap_err().to_string();
+            let err = read_zip(&zip[..zip.len() / 2], Path::new("x.npz"))
+                .unwrap_err()
+                .to_string();
             assert!(err.contains("x.npz") && err.contains("truncated"), "{err}");
         }
     }

@@ -36,11 +36,19 @@ impl Rays {
     }
 
     pub fn origin(&self, i: usize) -> [f32; 3] {
-        [self.origins[3 * i], self.origins[3 * i + 1], self.origins[3 * i + 2]]
+        [
+            self.origins[3 * i],
+            self.origins[3 * i + 1],
+            self.origins[3 * i + 2],
+        ]
     }
 
     pub fn direction(&self, i: usize) -> [f32; 3] {
-        [self.directions[3 * i], self.directions[3 * i + 1], self.directions[3 * i + 2]]
+        [
+            self.directions[3 * i],
+            self.directions[3 * i + 1],
+            self.directions[3 * i + 2],
+        ]
     }
 
     /// Unit-length viewing directions, `[N, 3]` (what direction encodings consume).
@@ -86,7 +94,12 @@ pub fn pixel_rays(camera: &Camera, pixels: impl IntoIterator<Item = u32>) -> Ray
 
 /// Intersection of rays with an axis-aligned box: per ray `(t_enter, t_exit)` in the ray's own
 /// parameter (depth), or `None` when it misses. `t_enter` is clamped to 0 for origins inside.
-pub fn intersect_aabb(origin: [f32; 3], direction: [f32; 3], lo: [f32; 3], hi: [f32; 3]) -> Option<(f32, f32)> {
+pub fn intersect_aabb(
+    origin: [f32; 3],
+    direction: [f32; 3],
+    lo: [f32; 3],
+    hi: [f32; 3],
+) -> Option<(f32, f32)> {
     let mut t0 = 0.0f32;
     let mut t1 = f32::INFINITY;
     for a in 0..3 {
@@ -117,7 +130,14 @@ mod tests {
     #[test]
     fn ray_points_project_back_to_their_pixel() {
         let cam = Camera::new(
-            Intrinsics { fx: 120.0, fy: 110.0, cx: 33.0, cy: 20.5, width: 64, height: 40 },
+            Intrinsics {
+                fx: 120.0,
+                fy: 110.0,
+                cx: 33.0,
+                cy: 20.5,
+                width: 64,
+                height: 40,
+            },
             Pose::look_at([0.5, -3.0, 2.0], [0.0; 3], [0.0, 0.0, 1.0]),
         );
         let rays = camera_rays(&cam);

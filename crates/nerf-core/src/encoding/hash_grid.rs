@@ -1,0 +1,627 @@
+//! Multiresolution hash encoding (Instant-NGP) as a fused CPU op with a hand-written backward
+//! and a sparse (touched-rows-only) Adam update.
+//!
+//! Per level l the grid has resolution N_l = ⌊N_min·b^l⌋ with b = exp((ln N_max − ln N_min)/(L−1)).
+//! A point x ∈ [0, 1]^D is scaled by N_l; its 2^D integer corners index the level's table, densely
+//! (row-major) when (N_l + 1)^D entries fit in the table, otherwise through the spatial hash
+//! h(v) = (⊕_i v_i·π_i) mod T with π = (1, 2654435761, 805459861, 3674653429) in wrapping u32
+//! arithmetic. The F features of the corners are blended with D-linear weights Π_i(1 − |x_i N_l − v_i|).
+//!
+//! The table lives on the host, not in burn: burn's dense gradient and Adam would touch all
+//! L·T·F entries every step (about 200 ms for 16 × 2^19 × 2 here), while a batch touches a small
+//! fraction. The op's backward accumulates table gradients into a host buffer and records which
+//! entries it touched; [`HashGrid::adam_step`] updates only those. The burn graph reaches the
+//! backward through a one-element "anchor" input that requires grad.
+
+use std::sync::{Arc, Mutex, RwLock};
+
+use burn::tensor::{Device, Int, Tensor, TensorData};
+use rand::{Rng, SeedableRng, rngs::StdRng};
+use rayon::prelude::*;
+
+use crate::host_op::{HostKernel, HostTensor, host_op};
+use crate::optim::{AdamParams, SparseAdam};
+
+/// Spatial-hash primes (the first is 1 on purpose, for memory coherence along x).
+pub const PRIMES: [u32; 4] = [1, 2_654_435_761, 805_459_861, 3_674_653_429];
+
+/// Hash grid hyper-parameters.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct HashGridConfig {
+    /// Input dimension: 3 for space, 4 for space-time.
+    pub dims: usize,
+    pub levels: usize,
+    pub features: usize,
+    /// log2 of the maximum entries per level (T).
+    pub log2_table: u32,
+    pub base_resolution: u32,
+    pub finest_resolution: u32,
+}
+
+impl Default for HashGridConfig {
+    fn default() -> Self {
+        HashGridConfig {
+            dims: 3,
+            levels: 16,
+            features: 2,
+            log2_table: 19,
+            base_resolution: 16,
+            finest_resolution: 2048,
+        }
+    }
+}
+
+impl HashGridConfig {
+    pub fn output_dim(&self) -> usize {
+        self.levels * self.features
+    }
+
+    /// The per-level growth factor b.
+    pub fn growth(&self) -> f64 {
+        if self.levels <= 1 {
+            return 1.0;
+        }
+        ((self.finest_resolution as f64).ln() - (self.base_resolution as f64).ln()) / (self.levels - 1) as f64
+    }
+}
+
+/// Geometry of one level.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Level {
+    /// N_l: positions are scaled by this.
+    pub resolution: u32,
+    /// First entry of this level in the flat table.
+    pub offset: usize,
+    /// Entries in this level (≤ T).
+    pub size: usize,
+    /// Dense (collision-free) indexing.
+    pub dense: bool,
+}
+
+/// Level layout for a config.
+pub fn levels(cfg: &HashGridConfig) -> Vec<Level> {
+    let t_max = 1usize << cfg.log2_table;
+    let b = cfg.growth().exp();
+    let mut offset = 0;
+    (0..cfg.levels)
+        .map(|l| {
+            let resolution = (cfg.base_resolution as f64 * b.powi(l as i32)).floor() as u32;
+            let dense_size = (resolution as usize + 1)
+                .checked_pow(cfg.dims as u32)
+                .unwrap_or(usize::MAX);
+            let (size, dense) = if dense_size <= t_max {
+                (dense_size.div_ceil(8) * 8, true)
+            } else {
+                (t_max, false)
+            };
+            let level = Level {
+                resolution,
+                offset,
+                size,
+                dense,
+            };
+            offset += size;
+            level
+        })
+        .collect()
+}
+
+/// Table index of integer corner `v` at `level`.
+#[inline(always)]
+pub fn corner_index(level: &Level, v: &[u32]) -> usize {
+    if level.dense {
+        let stride = level.resolution as usize + 1;
+        let mut idx = 0usize;
+        for &c in v.iter().rev() {
+            idx = idx * stride + c as usize;
+        }
+        idx
+    } else {
+        let mut h = 0u32;
+        for (c, p) in v.iter().zip(PRIMES) {
+            h ^= c.wrapping_mul(p);
+        }
+        (h as usize) & (level.size - 1)
+    }
+}
+
+/// The 2^D (= C) corners of the cell holding `x` at one level: flat table indices (level offset
+/// included) and D-linear weights. Returns the in-cell position (for the position gradient).
+/// `DENSE` is a compile-time copy of `level.dense` so the inner loops carry no branch.
+#[inline(always)]
+fn corners<const D: usize, const C: usize, const DENSE: bool>(
+    level: &Level,
+    x: &[f32],
+    idx: &mut [u32; C],
+    w: &mut [f32; C],
+) -> [f32; D] {
+    let res = level.resolution;
+    let mut lo_hi = [[0u32; 2]; D];
+    let mut wt = [[0f32; 2]; D];
+    let mut frac = [0f32; D];
+    let mut stride = 1u32;
+    for i in 0..D {
+        let p = x[i].clamp(0.0, 1.0) * res as f32;
+        // p ≥ 0, so truncation is floor (f32::floor is a libm call on baseline x86_64). The far
+        // face x = 1 belongs to the last cell so that corner + 1 stays on the grid. NaN → 0.
+        let v = (p as u32).min(res.saturating_sub(1));
+        frac[i] = p - v as f32;
+        wt[i] = [1.0 - frac[i], frac[i]];
+        lo_hi[i] = if DENSE {
+            [v * stride, (v + 1) * stride]
+        } else {
+            [v.wrapping_mul(PRIMES[i]), (v + 1).wrapping_mul(PRIMES[i])]
+        };
+        stride *= res + 1;
+    }
+    let mask = (level.size - 1) as u32;
+    for c in 0..C {
+        let mut h = 0u32;
+        let mut weight = 1.0f32;
+        for i in 0..D {
+            let up = (c >> i) & 1;
+            h = if DENSE { h + lo_hi[i][up] } else { h ^ lo_hi[i][up] };
+            weight *= wt[i][up];
+        }
+        idx[c] = level.offset as u32 + if DENSE { h } else { h & mask };
+        w[c] = weight;
+    }
+    frac
+}
+
+/// Hints the CPU to start loading `data[i]`; random table lookups are latency-bound, so issuing
+/// the loads of the next block of points while using the current one hides most of it.
+#[inline(always)]
+fn prefetch(data: *const f32, i: usize) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        let ptr = data.wrapping_add(i) as *const i8;
+        // SAFETY: prefetching never faults, even for an invalid address; sse is baseline on x86_64.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(ptr) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (data, i);
+}
+
+/// Points per block in the prefetch pipeline.
+const BLOCK: usize = 32;
+
+/// Streams every point of `pos` through one level: computes the corners a block ahead,
+/// prefetching the rows they touch in the buffer at `data` (its row 0 is table entry `base`,
+/// rows are `f_n` wide; a raw pointer because `consume` may be writing that buffer), and hands
+/// each point's corners to `consume(point, idx, w)`.
+#[inline(always)]
+fn sweep_level<const D: usize, const C: usize, const DENSE: bool>(
+    level: &Level,
+    pos: &[f32],
+    (data, base, f_n): (*const f32, usize, usize),
+    mut consume: impl FnMut(usize, &[u32; C], &[f32; C]),
+) {
+    let n = pos.len() / D;
+    let mut idx = [[[0u32; C]; BLOCK]; 2];
+    let mut w = [[[0f32; C]; BLOCK]; 2];
+    let fill = |start: usize, idx: &mut [[u32; C]; BLOCK], w: &mut [[f32; C]; BLOCK]| {
+        for p in start..(start + BLOCK).min(n) {
+            let j = p - start;
+            corners::<D, C, DENSE>(level, &pos[p * D..(p + 1) * D], &mut idx[j], &mut w[j]);
+            for &i in idx[j].iter() {
+                prefetch(data, (i as usize - base) * f_n);
+            }
+        }
+    };
+    fill(0, &mut idx[0], &mut w[0]);
+    for (b, start) in (0..n).step_by(BLOCK).enumerate() {
+        let (idx_cur, idx_next) = split_pair(&mut idx, b % 2);
+        let (w_cur, w_next) = split_pair(&mut w, b % 2);
+        fill(start + BLOCK, idx_next, w_next);
+        for p in start..(start + BLOCK).min(n) {
+            consume(p, &idx_cur[p - start], &w_cur[p - start]);
+        }
+    }
+}
+
+/// The `cur` element of a pair and the other one, both mutable.
+fn split_pair<T>(pair: &mut [T; 2], cur: usize) -> (&mut T, &mut T) {
+    let [a, b] = pair;
+    if cur == 0 { (a, b) } else { (b, a) }
+}
+
+/// Calls `sweep_level` with `DENSE` matching the level.
+#[inline(always)]
+fn sweep<const D: usize, const C: usize>(
+    level: &Level,
+    pos: &[f32],
+    data: (*const f32, usize, usize),
+    consume: impl FnMut(usize, &[u32; C], &[f32; C]),
+) {
+    if level.dense {
+        sweep_level::<D, C, true>(level, pos, data, consume)
+    } else {
+        sweep_level::<D, C, false>(level, pos, data, consume)
+    }
+}
+
+/// A hash grid: configuration, host table, gradient buffer and its optimiser.
+#[derive(Debug)]
+pub struct HashGrid {
+    pub config: HashGridConfig,
+    pub levels: Vec<Level>,
+    /// `[entries, F]`, level after level.
+    table: RwLock<Vec<f32>>,
+    /// dL/dtable accumulated by backward passes until the next optimiser step.
+    grads: Mutex<Vec<f32>>,
+    adam: Mutex<SparseAdam>,
+}
+
+impl HashGrid {
+    /// A grid with entries drawn uniformly from [−1e-4, 1e-4].
+    pub fn new(config: HashGridConfig, seed: u64) -> Arc<Self> {
+        assert!(
+            (1..=4).contains(&config.dims),
+            "hash grid supports 1 to 4 dimensions"
+        );
+        let levels = levels(&config);
+        let entries = levels.last().map_or(0, |l| l.offset + l.size);
+        let mut rng = StdRng::seed_from_u64(seed);
+        let table: Vec<f32> = (0..entries * config.features)
+            .map(|_| rng.random_range(-1e-4..1e-4))
+            .collect();
+        Self::with_table(config, table)
+    }
+
+    /// A grid with the given table (`entries · F` values), e.g. from a checkpoint.
+    pub fn with_table(config: HashGridConfig, table: Vec<f32>) -> Arc<Self> {
+        let levels = levels(&config);
+        let entries = levels.last().map_or(0, |l| l.offset + l.size);
+        assert_eq!(
+            table.len(),
+            entries * config.features,
+            "table size for {config:?}"
+        );
+        let grads = vec![0.0; table.len()];
+        let adam = SparseAdam::new(table.len());
+        Arc::new(HashGrid {
+            config,
+            levels,
+            table: RwLock::new(table),
+            grads: Mutex::new(grads),
+            adam: Mutex::new(adam),
+        })
+    }
+
+    pub fn num_entries(&self) -> usize {
+        self.levels.last().map_or(0, |l| l.offset + l.size)
+    }
+
+    pub fn num_params(&self) -> usize {
+        self.num_entries() * self.config.features
+    }
+
+    /// A copy of the table.
+    pub fn table(&self) -> Vec<f32> {
+        self.table.read().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// Encodes `[N, D]` positions in [0, 1]^D into `[N, L·F]` features. Differentiable: the table
+    /// gradient lands in this grid's buffer, the position gradient flows on in the graph.
+    pub fn encode(self: &Arc<Self>, positions: Tensor<2>) -> Tensor<2> {
+        let device = positions.device();
+        let anchor = Tensor::<2>::zeros([1, 1], &device);
+        let anchor = if device.is_autodiff() {
+            anchor.require_grad()
+        } else {
+            anchor
+        };
+        host_op(
+            vec![positions, anchor],
+            Arc::new(HashEncodeKernel { grid: self.clone() }),
+        )
+    }
+
+    /// Host-side encoding (no graph): `[N, D]` → `[N, L·F]`.
+    pub fn encode_host(&self, positions: &[f32]) -> Vec<f32> {
+        let table = self.table.read().unwrap_or_else(|e| e.into_inner());
+        match self.config.dims {
+            1 => self.forward::<1, 2>(&table, positions),
+            2 => self.forward::<2, 4>(&table, positions),
+            3 => self.forward::<3, 8>(&table, positions),
+            _ => self.forward::<4, 16>(&table, positions),
+        }
+    }
+
+    fn forward<const D: usize, const C: usize>(&self, table: &[f32], positions: &[f32]) -> Vec<f32> {
+        let f_n = self.config.features;
+        let levels = self.levels.len();
+        let width = levels * f_n;
+        let n = positions.len() / D;
+        // Level-major: one task streams all points through one level, so its random reads stay
+        // within that level's table (a few MB: cache-resident) instead of all of them.
+        let mut by_level = vec![0.0f32; n * width];
+        by_level
+            .par_chunks_mut(n * f_n)
+            .zip(&self.levels)
+            .for_each(|(dst, level)| {
+                sweep::<D, C>(level, positions, (table.as_ptr(), 0, f_n), |p, idx, w| {
+                    let o = &mut dst[p * f_n..(p + 1) * f_n];
+                    if f_n == 2 {
+                        // The common case, unrolled into registers.
+                        let (mut a, mut b) = (0.0f32, 0.0f32);
+                        for k in 0..C {
+                            let i = idx[k] as usize * 2;
+                            a += w[k] * table[i];
+                            b += w[k] * table[i + 1];
+                        }
+                        o[0] = a;
+                        o[1] = b;
+                    } else {
+                        for k in 0..C {
+                            let i = idx[k] as usize * f_n;
+                            for f in 0..f_n {
+                                o[f] += w[k] * table[i + f];
+                            }
+                        }
+                    }
+                });
+            });
+        // Interleave the levels per point, parallel over output rows.
+        let mut out = vec![0.0f32; n * width];
+        out.par_chunks_mut(width * 1024)
+            .enumerate()
+            .for_each(|(chunk, rows)| {
+                for (i, row) in rows.chunks_exact_mut(width).enumerate() {
+                    let p = chunk * 1024 + i;
+                    for l in 0..levels {
+                        let src = (l * n + p) * f_n;
+                        row[l * f_n..(l + 1) * f_n].copy_from_slice(&by_level[src..src + f_n]);
+                    }
+                }
+            });
+        out
+    }
+
+    /// Accumulates dL/dtable from dL/dfeatures `[N, L·F]` (parallel over levels: no races).
+    fn accumulate<const D: usize, const C: usize>(&self, positions: &[f32], grad_out: &[f32]) {
+        let f_n = self.config.features;
+        let width = self.levels.len() * f_n;
+        let mut grad = self.grads.lock().unwrap_or_else(|e| e.into_inner());
+        // Split the gradient buffer by level (levels are contiguous).
+        let mut grad_parts = Vec::new();
+        let mut rest = grad.as_mut_slice();
+        for level in &self.levels {
+            let (a, b) = std::mem::take(&mut rest).split_at_mut(level.size * f_n);
+            grad_parts.push(a);
+            rest = b;
+        }
+        // Each level reads its own columns of the upstream gradient: a strided stream the
+        // hardware prefetcher follows, cheaper than transposing the whole matrix first.
+        grad_parts
+            .into_par_iter()
+            .enumerate()
+            .zip(&self.levels)
+            .for_each(|((l, g), level)| {
+                let offset = level.offset;
+                sweep::<D, C>(level, positions, (g.as_ptr(), offset, f_n), |p, idx, w| {
+                    let up = &grad_out[p * width + l * f_n..p * width + (l + 1) * f_n];
+                    if f_n == 2 {
+                        let (u0, u1) = (up[0], up[1]);
+                        for k in 0..C {
+                            let i = (idx[k] as usize - offset) * 2;
+                            g[i] += w[k] * u0;
+                            g[i + 1] += w[k] * u1;
+                        }
+                    } else {
+                        for k in 0..C {
+                            let i = (idx[k] as usize - offset) * f_n;
+                            for f in 0..f_n {
+                                g[i + f] += w[k] * up[f];
+                            }
+                        }
+                    }
+                });
+            });
+    }
+
+    /// dL/dpositions `[N, D]` given dL/dfeatures (parallel over points).
+    fn position_grad<const D: usize, const C: usize>(
+        &self,
+        table: &[f32],
+        positions: &[f32],
+        grad_out: &[f32],
+    ) -> Vec<f32> {
+        let f_n = self.config.features;
+        let width = self.levels.len() * f_n;
+        let mut out = vec![0.0f32; positions.len()];
+        out.par_chunks_mut(D)
+            .zip(positions.par_chunks(D))
+            .enumerate()
+            .with_min_len(256)
+            .for_each(|(p, (dx, x))| {
+                let go = &grad_out[p * width..(p + 1) * width];
+                for (l, level) in self.levels.iter().enumerate() {
+                    let mut idx = [0u32; C];
+                    let mut wts = [0f32; C];
+                    let frac = if level.dense {
+                        corners::<D, C, true>(level, x, &mut idx, &mut wts)
+                    } else {
+                        corners::<D, C, false>(level, x, &mut idx, &mut wts)
+                    };
+                    let up = &go[l * f_n..(l + 1) * f_n];
+                    let res = level.resolution as f32;
+                    let inside: [bool; D] = std::array::from_fn(|i| (0.0..=1.0).contains(&x[i]));
+                    for corner in 0..C {
+                        let idx = idx[corner] as usize;
+                        let dot: f32 = (0..f_n).map(|f| up[f] * table[idx * f_n + f]).sum();
+                        if dot == 0.0 {
+                            continue;
+                        }
+                        for a in 0..D {
+                            if !inside[a] {
+                                continue; // clamped coordinate: no gradient
+                            }
+                            let mut w = res * if (corner >> a) & 1 == 1 { 1.0 } else { -1.0 };
+                            for i in 0..D {
+                                if i != a {
+                                    w *= if (corner >> i) & 1 == 1 {
+                                        frac[i]
+                                    } else {
+                                        1.0 - frac[i]
+                                    };
+                                }
+                            }
+                            dx[a] += w * dot;
+                        }
+                    }
+                }
+            });
+        out
+    }
+
+    /// Clears accumulated gradients (when a step is skipped).
+    pub fn zero_grad(&self) {
+        let mut grad = self.grads.lock().unwrap_or_else(|e| e.into_inner());
+        grad.par_chunks_mut(1 << 16).for_each(|c| c.fill(0.0));
+    }
+
+    /// Number of table entries with a non-zero gradient since the last step.
+    pub fn touched(&self) -> usize {
+        let grad = self.grads.lock().unwrap_or_else(|e| e.into_inner());
+        grad.chunks(self.config.features)
+            .filter(|r| r.iter().any(|v| *v != 0.0))
+            .count()
+    }
+
+    /// Dense copy of the accumulated table gradient (tests and diagnostics).
+    pub fn grad(&self) -> Vec<f32> {
+        self.grads.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// Adam on the entries with a gradient only, then clears the gradients. Entries untouched
+    /// this step keep their value and their moments (Instant-NGP skips zero-gradient entries too).
+    /// Returns the number of entries updated.
+    pub fn adam_step(&self, params: &AdamParams, lr: f64) -> usize {
+        let mut grad = self.grads.lock().unwrap_or_else(|e| e.into_inner());
+        let mut table = self.table.write().unwrap_or_else(|e| e.into_inner());
+        let mut adam = self.adam.lock().unwrap_or_else(|e| e.into_inner());
+        adam.step(params, lr, &mut table, &mut grad, self.config.features)
+    }
+
+    /// Optimiser state for checkpoints: (step, first moments, second moments).
+    pub fn adam_state(&self) -> (u64, Vec<f32>, Vec<f32>) {
+        self.adam.lock().unwrap_or_else(|e| e.into_inner()).state()
+    }
+
+    pub fn set_adam_state(&self, step: u64, m: Vec<f32>, v: Vec<f32>) {
+        self.adam
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .set_state(step, m, v);
+    }
+}
+
+/// The fused op: inputs positions `[N, D]` and the anchor `[1, 1]`; output `[N, L·F]`.
+#[derive(Debug)]
+struct HashEncodeKernel {
+    grid: Arc<HashGrid>,
+}
+
+impl HostKernel for HashEncodeKernel {
+    fn forward(&self, inputs: &[HostTensor]) -> HostTensor {
+        let n = inputs[0].shape[0];
+        let out = self.grid.encode_host(&inputs[0].data);
+        HostTensor::new(vec![n, self.grid.config.output_dim()], out)
+    }
+
+    fn backward(
+        &self,
+        inputs: &[HostTensor],
+        _: &HostTensor,
+        grad: &HostTensor,
+        wanted: &[bool],
+    ) -> Vec<Option<HostTensor>> {
+        let pos = &inputs[0].data;
+        let g = &self.grid;
+
+        match g.config.dims {
+            1 => g.accumulate::<1, 2>(pos, &grad.data),
+            2 => g.accumulate::<2, 4>(pos, &grad.data),
+            3 => g.accumulate::<3, 8>(pos, &grad.data),
+            _ => g.accumulate::<4, 16>(pos, &grad.data),
+        }
+        let dpos = wanted[0].then(|| {
+            let table = g.table.read().unwrap_or_else(|e| e.into_inner());
+            let d = match g.config.dims {
+                1 => g.position_grad::<1, 2>(&table, pos, &grad.data),
+                2 => g.position_grad::<2, 4>(&table, pos, &grad.data),
+                3 => g.position_grad::<3, 8>(&table, pos, &grad.data),
+                _ => g.position_grad::<4, 16>(&table, pos, &grad.data),
+            };
+            HostTensor::new(inputs[0].shape.clone(), d)
+        });
+        vec![dpos, None]
+    }
+}
+
+/// The same encoding written with generic burn tensor ops (floor, integer hash, `select`,
+/// weighted sum), with the table as an ordinary tensor: the baseline the fused op is measured
+/// against, and an independent cross-check of its values and gradients. 3-D only.
+///
+/// `table`: `[entries, F]`; `positions`: `[N, 3]` in [0, 1]; returns `[N, L·F]`.
+pub fn encode_reference(cfg: &HashGridConfig, table: Tensor<2>, positions: Tensor<2>) -> Tensor<2> {
+    assert_eq!(cfg.dims, 3);
+    let device: Device = positions.device();
+    let n = positions.dims()[0];
+    let mut outs = Vec::new();
+    for level in levels(cfg) {
+        let res = level.resolution as f32;
+        let p = positions.clone().clamp(0.0, 1.0) * res;
+        let base = p.clone().floor().clamp(0.0, res - 1.0);
+        let frac = p - base.clone();
+        let base_i: Tensor<2, Int> = base.int();
+        let mut acc: Option<Tensor<2>> = None;
+        for corner in 0..8usize {
+            let mut idx: Option<Tensor<1, Int>> = None;
+            let mut w: Option<Tensor<1>> = None;
+            for a in 0..3 {
+                let up = (corner >> a) & 1;
+                let v = base_i.clone().slice([0..n, a..a + 1]).reshape([n]) + up as i64;
+                let fa = frac.clone().slice([0..n, a..a + 1]).reshape([n]);
+                let wa = if up == 1 { fa } else { fa.neg().add_scalar(1.0) };
+                w = Some(match w {
+                    None => wa,
+                    Some(w) => w * wa,
+                });
+                let term = if level.dense {
+                    v * ((level.resolution as i64 + 1).pow(a as u32))
+                } else {
+                    v * (PRIMES[a] as i32 as i64)
+                };
+                idx = Some(match idx {
+                    None => term,
+                    Some(i) if level.dense => i + term,
+                    Some(i) => i.bitwise_xor(term),
+                });
+            }
+            let mut idx = idx.unwrap_or_else(|| Tensor::zeros([n], &device));
+            if !level.dense {
+                idx = idx.bitwise_and_scalar(level.size as i64 - 1);
+            }
+            let rows = table.clone().select(0, idx + level.offset as i64);
+            let contrib = rows
+                * w.unwrap_or_else(|| Tensor::ones([n], &device))
+                    .unsqueeze_dim::<2>(1);
+            acc = Some(match acc {
+                None => contrib,
+                Some(a) => a + contrib,
+            });
+        }
+        outs.extend(acc);
+    }
+    Tensor::cat(outs, 1)
+}
+
+/// Table as a burn tensor (for the reference path and diagnostics).
+pub fn table_tensor(grid: &HashGrid, device: &Device) -> Tensor<2> {
+    let f = grid.config.features;
+    Tensor::from_data(TensorData::new(grid.table(), [grid.num_entries(), f]), device)
+}
