@@ -12,6 +12,10 @@ pub mod composite;
 pub mod device;
 pub mod encoding;
 pub mod host_op;
+pub mod metrics;
+pub mod mlp;
+pub mod occupancy;
 pub mod optim;
+pub mod sampler;
 
 pub use nerf_data::{camera, ndc, rays};
