@@ -18,11 +18,18 @@ use nerf_data::Image;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
-    let arg = |name: &str| args.iter().position(|a| a == name).and_then(|i| args.get(i + 1)).cloned();
+    let arg = |name: &str| {
+        args.iter()
+            .position(|a| a == name)
+            .and_then(|i| args.get(i + 1))
+            .cloned()
+    };
     let steps: usize = arg("--steps").map_or(Ok(100), |s| s.parse())?;
     let path = match arg("--image") {
         Some(p) => std::path::PathBuf::from(p),
-        None => nerf_data::shared_data().ok_or("../shared/data not found; pass --image")?.join("nerf_synthetic/lego/train/r_1.png"),
+        None => nerf_data::shared_data()
+            .ok_or("../shared/data not found; pass --image")?
+            .join("nerf_synthetic/lego/train/r_1.png"),
     };
     // Crop the central 256x256 of the 800x800 view, composited on white.
     let (img, _) = Image::load(&path)?.composite_alpha([1.0; 3]);
@@ -37,7 +44,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let device = Device::flex().autodiff();
     let n = size * size;
-    let cfg = HashGridConfig { dims: 2, levels: 16, features: 2, log2_table: 15, base_resolution: 8, finest_resolution: 512 };
+    let cfg = HashGridConfig {
+        dims: 2,
+        levels: 16,
+        features: 2,
+        log2_table: 15,
+        base_resolution: 8,
+        finest_resolution: 512,
+    };
     let grid = HashGrid::new(cfg.clone(), 0);
     let mut mlp = MlpConfig::new(cfg.output_dim(), 64, 2, 3).init(&device);
     let mut optim = AdamConfig::new().with_beta_2(0.99).with_epsilon(1e-15).init();
@@ -57,13 +71,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let pred = sigmoid(mlp.valid().forward(grid.encode(x.clone().inner())));
             let out = pred.into_data().try_into_vec_as::<f32>()?;
             last = psnr(&out, &target);
-            println!("step {step:4}  {:6.1} s  PSNR {last:.2} dB", start.elapsed().as_secs_f64());
+            println!(
+                "step {step:4}  {:6.1} s  PSNR {last:.2} dB",
+                start.elapsed().as_secs_f64()
+            );
             if step == steps {
                 let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target");
                 Image::from_data(size as u32, size as u32, 3, out).save_png(&dir.join("fit_image.png"))?;
             }
         }
     }
-    println!("final PSNR {last:.2} dB after {steps} steps in {:.1} s", start.elapsed().as_secs_f64());
+    println!(
+        "final PSNR {last:.2} dB after {steps} steps in {:.1} s",
+        start.elapsed().as_secs_f64()
+    );
     Ok(())
 }

@@ -302,6 +302,23 @@ pub fn weights(sigma: &[f32], layout: &RayLayout, stop_eps: f32) -> Vec<f32> {
     w
 }
 
+/// Which samples a ray still reaches before its transmittance falls below `stop_eps` (single
+/// density component, host): the samples early termination keeps.
+pub fn alive(sigma: &[f32], layout: &RayLayout, stop_eps: f32) -> Vec<bool> {
+    let mut keep = vec![false; sigma.len()];
+    let kernel = CompositeKernel {
+        layout: layout.clone(),
+        components: 1,
+        channels: 0,
+        blended: false,
+        stop_eps,
+    };
+    for r in 0..layout.num_rays() {
+        kernel.sweep(r, sigma, None, |s, _, _| keep[s] = true);
+    }
+    keep
+}
+
 /// The same compositing written with generic burn tensor ops, for rays with a fixed number of
 /// samples and one component: the cross-check for the fused kernel and the baseline it beats.
 ///

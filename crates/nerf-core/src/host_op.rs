@@ -1,3 +1,4 @@
+#![allow(deprecated)] // burn-ndarray is deprecated upstream; we keep it as an optional cross-check backend.
 //! Fused CPU kernels with hand-written backward passes, callable on burn tensors.
 //!
 //! burn's generic gather/scatter and per-sample elementwise chains are memory-bound on a CPU. A

@@ -16,6 +16,7 @@ pub mod metrics;
 pub mod mlp;
 pub mod occupancy;
 pub mod optim;
+pub mod profile;
 pub mod sampler;
 
 pub use nerf_data::{camera, ndc, rays};

@@ -3,7 +3,12 @@
 /// PSNR in dB of two images with values in [0, 1]: −10·log10(MSE). Identical images give +∞.
 pub fn psnr(a: &[f32], b: &[f32]) -> f64 {
     assert_eq!(a.len(), b.len(), "psnr: images differ in size");
-    let mse = a.iter().zip(b).map(|(x, y)| ((*x as f64) - (*y as f64)).powi(2)).sum::<f64>() / a.len().max(1) as f64;
+    let mse = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| ((*x as f64) - (*y as f64)).powi(2))
+        .sum::<f64>()
+        / a.len().max(1) as f64;
     -10.0 * mse.log10()
 }
 
@@ -27,7 +32,8 @@ pub fn ssim(a: &[f32], b: &[f32], width: usize, height: usize, channels: usize) 
     let (ow, oh) = (width - SIZE + 1, height - SIZE + 1);
     let mut total = 0.0;
     for c in 0..channels {
-        let channel = |img: &[f32]| -> Vec<f64> { img.iter().skip(c).step_by(channels).map(|v| *v as f64).collect() };
+        let channel =
+            |img: &[f32]| -> Vec<f64> { img.iter().skip(c).step_by(channels).map(|v| *v as f64).collect() };
         let (x, y) = (channel(a), channel(b));
         let xx: Vec<f64> = x.iter().map(|v| v * v).collect();
         let yy: Vec<f64> = y.iter().map(|v| v * v).collect();
@@ -47,7 +53,9 @@ pub fn ssim(a: &[f32], b: &[f32], width: usize, height: usize, channels: usize) 
 
 fn gaussian_kernel(size: usize, sigma: f64) -> Vec<f64> {
     let c = (size as f64 - 1.0) / 2.0;
-    let k: Vec<f64> = (0..size).map(|i| (-((i as f64 - c).powi(2)) / (2.0 * sigma * sigma)).exp()).collect();
+    let k: Vec<f64> = (0..size)
+        .map(|i| (-((i as f64 - c).powi(2)) / (2.0 * sigma * sigma)).exp())
+        .collect();
     let s: f64 = k.iter().sum();
     k.into_iter().map(|v| v / s).collect()
 }

@@ -23,7 +23,13 @@ pub struct OccupancyConfig {
 
 impl Default for OccupancyConfig {
     fn default() -> Self {
-        OccupancyConfig { resolution: 64, update_every: 16, decay: 0.95, threshold: 0.01, warmup_steps: 256 }
+        OccupancyConfig {
+            resolution: 64,
+            update_every: 16,
+            decay: 0.95,
+            threshold: 0.01,
+            warmup_steps: 256,
+        }
     }
 }
 
@@ -34,13 +40,21 @@ pub struct OccupancyGrid {
     pub aabb: [[f32; 3]; 2],
     values: Vec<f32>,
     bits: Vec<u64>,
+    /// Cells proven empty by the images (visual hull); never marked occupied again.
+    carved: Vec<bool>,
 }
 
 impl OccupancyGrid {
     /// A grid that starts fully occupied, so the first steps sample everywhere.
     pub fn new(config: OccupancyConfig, aabb: [[f32; 3]; 2]) -> Self {
         let n = (config.resolution as usize).pow(3);
-        OccupancyGrid { config, aabb, values: vec![0.0; n], bits: vec![u64::MAX; n.div_ceil(64)] }
+        OccupancyGrid {
+            config,
+            aabb,
+            values: vec![0.0; n],
+            bits: vec![u64::MAX; n.div_ceil(64)],
+            carved: vec![false; n],
+        }
     }
 
     pub fn num_cells(&self) -> usize {
@@ -93,17 +107,30 @@ impl OccupancyGrid {
     }
 
     /// Refreshes the grid at training step `step`: during warm-up every cell, afterwards a
-    /// quarter of the cells at random plus up to a quarter of the occupied ones. `density`
+    /// quarter of the cells at random plus up to a quarter of the occupied ones (carved cells
+    /// excluded). `density`
     /// maps `[M, 3]` world positions to M densities; `step_size` is the marching step length.
-    pub fn update(&mut self, step: usize, step_size: f32, rng: &mut impl Rng, density: &mut dyn FnMut(&[f32]) -> Vec<f32>) {
-        let n = self.num_cells();
-        let cells: Vec<usize> = if step < self.config.warmup_steps {
-            (0..n).collect()
+    pub fn update(
+        &mut self,
+        step: usize,
+        step_size: f32,
+        rng: &mut impl Rng,
+        density: &mut dyn FnMut(&[f32]) -> Vec<f32>,
+    ) {
+        // Carved cells are known empty: never spend density queries on them.
+        let live: Vec<usize> = (0..self.num_cells()).filter(|&i| !self.carved[i]).collect();
+        let n = live.len();
+        let cells: Vec<usize> = if n == 0 {
+            Vec::new()
+        } else if step < self.config.warmup_steps {
+            live
         } else {
-            let mut cells: Vec<usize> = (0..n / 4).map(|_| rng.random_range(0..n)).collect();
-            let occupied: Vec<usize> = (0..n).filter(|&i| self.bit(i)).collect();
+            let mut cells: Vec<usize> = (0..n / 4).map(|_| live[rng.random_range(0..n)]).collect();
+            let occupied: Vec<usize> = live.iter().copied().filter(|&i| self.bit(i)).collect();
             if !occupied.is_empty() {
-                cells.extend((0..(n / 4).min(occupied.len())).map(|_| occupied[rng.random_range(0..occupied.len())]));
+                cells.extend(
+                    (0..(n / 4).min(occupied.len())).map(|_| occupied[rng.random_range(0..occupied.len())]),
+                );
             }
             cells
         };
@@ -122,19 +149,31 @@ impl OccupancyGrid {
         }
         let sigma = density(&points);
         for (&i, &s) in cells.iter().zip(&sigma) {
-            let occ = if s.is_finite() { (s * step_size).max(0.0) } else { 0.0 };
+            let occ = if s.is_finite() {
+                (s * step_size).max(0.0)
+            } else {
+                0.0
+            };
             self.values[i] = self.values[i].max(occ);
         }
         self.rebuild_bits();
     }
 
     fn rebuild_bits(&mut self) {
-        let (sum, count) = self.values.iter().filter(|v| **v > 0.0).fold((0.0f64, 0usize), |(s, c), v| (s + *v as f64, c + 1));
-        let mean = if count > 0 { (sum / count as f64) as f32 } else { 0.0 };
+        let (sum, count) = self
+            .values
+            .iter()
+            .filter(|v| **v > 0.0)
+            .fold((0.0f64, 0usize), |(s, c), v| (s + *v as f64, c + 1));
+        let mean = if count > 0 {
+            (sum / count as f64) as f32
+        } else {
+            0.0
+        };
         let thresh = self.config.threshold.min(mean);
         self.bits.iter_mut().for_each(|w| *w = 0);
         for (i, v) in self.values.iter().enumerate() {
-            if *v > thresh {
+            if *v > thresh && !self.carved[i] {
                 self.bits[i / 64] |= 1 << (i % 64);
             }
         }
@@ -149,6 +188,61 @@ impl OccupancyGrid {
     pub fn set_values(&mut self, values: Vec<f32>) {
         assert_eq!(values.len(), self.values.len());
         self.values = values;
+        self.rebuild_bits();
+    }
+
+    /// Centre of cell `i` in world coordinates.
+    pub fn cell_center(&self, i: usize) -> [f32; 3] {
+        let r = self.config.resolution as usize;
+        let c = [i % r, (i / r) % r, i / (r * r)];
+        let size = self.cell_size();
+        [0, 1, 2].map(|a| self.aabb[0][a] + (c[a] as f32 + 0.5) * size[a])
+    }
+
+    /// Visual-hull carving: marks as empty every cell whose centre projects onto background
+    /// pixels in at least `min_views` views. `project(view, p)` returns whether `p` lands on
+    /// background in that view (`Some(true)`), on foreground (`Some(false)`), or outside it
+    /// (`None`). The caller dilates its foreground masks by a cell's projected size, so a cell
+    /// is only carved when no part of it can be seen in front of background. Returns the
+    /// fraction of cells carved.
+    pub fn carve(
+        &mut self,
+        views: usize,
+        min_views: usize,
+        project: &(dyn Fn(usize, [f32; 3]) -> Option<bool> + Sync),
+    ) -> f32 {
+        use rayon::prelude::*;
+        let centers: Vec<[f32; 3]> = (0..self.num_cells()).map(|i| self.cell_center(i)).collect();
+        let carved: Vec<bool> = centers
+            .par_iter()
+            .map(|&p| {
+                (0..views)
+                    .filter(|&v| project(v, p) == Some(true))
+                    .take(min_views)
+                    .count()
+                    >= min_views
+            })
+            .collect();
+        for (c, new) in self.carved.iter_mut().zip(&carved) {
+            *c |= *new;
+        }
+        for (i, &c) in self.carved.iter().enumerate() {
+            if c {
+                self.bits[i / 64] &= !(1 << (i % 64));
+                self.values[i] = 0.0;
+            }
+        }
+        carved.iter().filter(|c| **c).count() as f32 / carved.len().max(1) as f32
+    }
+
+    /// Which cells the images proved empty (for checkpoints).
+    pub fn carved(&self) -> &[bool] {
+        &self.carved
+    }
+
+    pub fn set_carved(&mut self, carved: Vec<bool>) {
+        assert_eq!(carved.len(), self.carved.len());
+        self.carved = carved;
         self.rebuild_bits();
     }
 
@@ -179,12 +273,26 @@ mod tests {
 
     #[test]
     fn update_marks_dense_cells_only() {
-        let mut g = OccupancyGrid::new(OccupancyConfig { resolution: 16, ..Default::default() }, [[-1.0; 3], [1.0; 3]]);
+        let mut g = OccupancyGrid::new(
+            OccupancyConfig {
+                resolution: 16,
+                ..Default::default()
+            },
+            [[-1.0; 3], [1.0; 3]],
+        );
         assert_eq!(g.occupied_fraction(), 1.0);
         let mut rng = StdRng::seed_from_u64(0);
         // A solid ball of radius 0.5.
         let mut ball = |p: &[f32]| -> Vec<f32> {
-            p.chunks(3).map(|q| if q.iter().map(|v| v * v).sum::<f32>() < 0.25 { 100.0 } else { 0.0 }).collect()
+            p.chunks(3)
+                .map(|q| {
+                    if q.iter().map(|v| v * v).sum::<f32>() < 0.25 {
+                        100.0
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
         };
         g.update(0, 0.01, &mut rng, &mut ball);
         assert!(g.is_occupied([0.0, 0.0, 0.0]));
@@ -192,15 +300,95 @@ mod tests {
         assert!(!g.is_occupied([2.0, 0.0, 0.0]), "outside the box");
         let f = g.occupied_fraction();
         let ball_fraction = 4.0 / 3.0 * std::f32::consts::PI * 0.125 / 8.0;
-        assert!(f > 0.5 * ball_fraction && f < 2.0 * ball_fraction, "{f} vs {ball_fraction}");
+        assert!(
+            f > 0.5 * ball_fraction && f < 2.0 * ball_fraction,
+            "{f} vs {ball_fraction}"
+        );
     }
 
     #[test]
     fn cell_exit_reaches_the_next_boundary() {
-        let g = OccupancyGrid::new(OccupancyConfig { resolution: 4, ..Default::default() }, [[0.0; 3], [4.0; 3]]);
+        let g = OccupancyGrid::new(
+            OccupancyConfig {
+                resolution: 4,
+                ..Default::default()
+            },
+            [[0.0; 3], [4.0; 3]],
+        );
         let d = g.cell_exit([1.25, 1.5, 1.5], [1.0, 0.0, 0.0]);
         assert!((d - 0.75).abs() < 1e-6);
         let d = g.cell_exit([1.25, 1.5, 1.5], [-1.0, 0.0, 0.0]);
         assert!((d - 0.25).abs() < 1e-6);
     }
+}
+
+/// Per-view foreground masks as summed-area tables, for O(1) "any foreground in this window".
+struct ForegroundTable {
+    width: usize,
+    height: usize,
+    /// `(W + 1) × (H + 1)` prefix sums of the foreground indicator.
+    sums: Vec<u32>,
+}
+
+impl ForegroundTable {
+    fn new(width: usize, height: usize, foreground: impl Fn(usize) -> bool) -> Self {
+        let mut sums = vec![0u32; (width + 1) * (height + 1)];
+        for y in 0..height {
+            let mut row = 0u32;
+            for x in 0..width {
+                row += u32::from(foreground(y * width + x));
+                sums[(y + 1) * (width + 1) + x + 1] = sums[y * (width + 1) + x + 1] + row;
+            }
+        }
+        ForegroundTable { width, height, sums }
+    }
+
+    /// Foreground pixels in columns x0..x1, rows y0..y1 (exclusive ends).
+    fn count(&self, x0: usize, y0: usize, x1: usize, y1: usize) -> u32 {
+        let w = self.width + 1;
+        self.sums[y1 * w + x1] + self.sums[y0 * w + x0] - self.sums[y0 * w + x1] - self.sums[y1 * w + x0]
+    }
+}
+
+/// Carves the visual hull of an object dataset into `grid`: a cell is empty when, in at least two
+/// of the given views, the whole window its cell covers on screen shows background (alpha below
+/// 0.01, or exactly the background colour where the images have no alpha). Does nothing for
+/// scenes without a background (real captures) or in NDC space. Returns the carved fraction.
+pub fn carve_visual_hull(grid: &mut OccupancyGrid, dataset: &nerf_data::Dataset, views: &[usize]) -> f32 {
+    let Some(bg) = dataset.background else { return 0.0 };
+    if dataset.ndc.is_some() {
+        return 0.0;
+    }
+    let tables: Vec<ForegroundTable> = views
+        .iter()
+        .map(|&v| {
+            let view = &dataset.views[v];
+            let (w, h) = (view.image.width as usize, view.image.height as usize);
+            match &view.alpha {
+                Some(alpha) => ForegroundTable::new(w, h, |i| alpha[i] >= 0.01),
+                None => ForegroundTable::new(w, h, |i| {
+                    view.image
+                        .pixel(i)
+                        .iter()
+                        .zip(bg)
+                        .any(|(c, b)| (c - b).abs() > 0.5 / 255.0)
+                }),
+            }
+        })
+        .collect();
+    let size = grid.cell_size();
+    let half_diag = 0.5 * (size[0] * size[0] + size[1] * size[1] + size[2] * size[2]).sqrt() as f64;
+    let project = |k: usize, p: [f32; 3]| -> Option<bool> {
+        let cam = &dataset.views[views[k]].camera;
+        let (u, v, depth) = cam.project(p.map(f64::from))?;
+        // Pixel radius of the cell's bounding sphere, plus one pixel of slack.
+        let r = (cam.intrinsics.fx.max(cam.intrinsics.fy) * half_diag / depth).ceil() + 1.0;
+        let t = &tables[k];
+        let (x0, y0, x1, y1) = ((u - r).floor(), (v - r).floor(), (u + r).ceil(), (v + r).ceil());
+        if x0 < 0.0 || y0 < 0.0 || x1 > t.width as f64 || y1 > t.height as f64 || depth <= half_diag {
+            return None;
+        }
+        Some(t.count(x0 as usize, y0 as usize, x1 as usize, y1 as usize) == 0)
+    };
+    grid.carve(views.len(), 2, &project)
 }

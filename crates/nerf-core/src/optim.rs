@@ -38,8 +38,10 @@ impl SparseAdam {
     }
 
     /// Updates the rows (each `width` values) whose gradient is not all zero, then zeroes the
-    /// gradient. Returns how many rows were updated. The scan is sequential in memory and split
-    /// across threads, which is cheaper than tracking touched rows during the backward pass.
+    /// gradient. Only blocks of `block_rows` rows flagged in `dirty` are visited (and their flags
+    /// cleared), so the cost follows the rows a step touched, not the table size. Returns how
+    /// many rows were updated.
+    #[allow(clippy::too_many_arguments)]
     pub fn step(
         &mut self,
         p: &AdamParams,
@@ -47,6 +49,8 @@ impl SparseAdam {
         params: &mut [f32],
         grad: &mut [f32],
         width: usize,
+        dirty: &mut [bool],
+        block_rows: usize,
     ) -> usize {
         use rayon::prelude::*;
         self.step += 1;
@@ -55,25 +59,34 @@ impl SparseAdam {
         let (b1, b2) = (p.beta1 as f32, p.beta2 as f32);
         let step_size = (lr / bc1) as f32;
         let (inv_bc2_sqrt, eps) = ((1.0 / bc2.sqrt()) as f32, p.epsilon as f32);
-        let chunk = width * 4096;
+        const BLOCKS: usize = 1024;
+        let chunk = width * block_rows * BLOCKS;
         params
             .par_chunks_mut(chunk)
             .zip(grad.par_chunks_mut(chunk))
             .zip(self.m.par_chunks_mut(chunk))
             .zip(self.v.par_chunks_mut(chunk))
-            .map(|(((x, g), m), v)| {
+            .zip(dirty.par_chunks_mut(BLOCKS))
+            .map(|((((x, g), m), v), dirty)| {
                 let mut rows = 0;
-                for r in (0..x.len()).step_by(width) {
-                    if g[r..r + width].iter().all(|v| *v == 0.0) {
+                for (b, flag) in dirty.iter_mut().enumerate() {
+                    if !std::mem::take(flag) {
                         continue;
                     }
-                    rows += 1;
-                    for i in r..r + width {
-                        let gi = g[i];
-                        m[i] = b1 * m[i] + (1.0 - b1) * gi;
-                        v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
-                        x[i] -= step_size * m[i] / (v[i].sqrt() * inv_bc2_sqrt + eps);
-                        g[i] = 0.0;
+                    let start = b * block_rows * width;
+                    let end = (start + block_rows * width).min(x.len());
+                    for r in (start..end).step_by(width) {
+                        if g[r..r + width].iter().all(|v| *v == 0.0) {
+                            continue;
+                        }
+                        rows += 1;
+                        for i in r..r + width {
+                            let gi = g[i];
+                            m[i] = b1 * m[i] + (1.0 - b1) * gi;
+                            v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
+                            x[i] -= step_size * m[i] / (v[i].sqrt() * inv_bc2_sqrt + eps);
+                            g[i] = 0.0;
+                        }
                     }
                 }
                 rows
@@ -110,7 +123,7 @@ mod tests {
         let mut x0 = 1.0f64;
         for t in 1..=5 {
             let g = 0.5 * t as f32;
-            let rows = adam.step(&p, 0.1, &mut x, &mut [g, g, 0.0, 0.0], 2);
+            let rows = adam.step(&p, 0.1, &mut x, &mut [g, g, 0.0, 0.0], 2, &mut [true, true], 1);
             assert_eq!(rows, 1);
             m = 0.9 * m + 0.1 * g as f64;
             v = 0.999 * v + 0.001 * (g as f64).powi(2);

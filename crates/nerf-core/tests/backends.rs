@@ -27,7 +27,14 @@ fn run(device: &Device) -> Vec<Vec<f32>> {
     let tc = Tensor::<2>::from_data(TensorData::new(rgb, [r * s, 3]), device).require_grad();
     let out = composite(ts.clone(), tc.clone(), None, &layout, 0.0);
     let grid = HashGrid::new(
-        HashGridConfig { dims: 3, levels: 4, features: 2, log2_table: 10, base_resolution: 4, finest_resolution: 32 },
+        HashGridConfig {
+            dims: 3,
+            levels: 4,
+            features: 2,
+            log2_table: 10,
+            base_resolution: 4,
+            finest_resolution: 32,
+        },
         7,
     );
     let pts: Vec<f32> = (0..60).map(|_| rng.random_range(0.0..1.0)).collect();

@@ -33,7 +33,8 @@ fn ssim_reference(a: &[f32], b: &[f32], w: usize, h: usize, ch: usize) -> f64 {
                     }
                 }
                 let (vx, vy, cov) = (sxx - mx * mx, syy - my * my, sxy - mx * my);
-                total += (2.0 * mx * my + c1) * (2.0 * cov + c2) / ((mx * mx + my * my + c1) * (vx + vy + c2));
+                total +=
+                    (2.0 * mx * my + c1) * (2.0 * cov + c2) / ((mx * mx + my * my + c1) * (vx + vy + c2));
                 count += 1;
             }
         }
@@ -47,11 +48,22 @@ fn psnr_and_ssim_match_f64_references() {
     for (w, h) in [(11usize, 11usize), (32, 20), (40, 40)] {
         for noise in [0.01f32, 0.1, 0.5] {
             let a: Vec<f32> = (0..w * h * 3).map(|_| rng.random_range(0.0..1.0)).collect();
-            let b: Vec<f32> = a.iter().map(|v| (v + rng.random_range(-noise..noise)).clamp(0.0, 1.0)).collect();
-            let mse: f64 = a.iter().zip(&b).map(|(x, y)| (*x as f64 - *y as f64).powi(2)).sum::<f64>() / a.len() as f64;
+            let b: Vec<f32> = a
+                .iter()
+                .map(|v| (v + rng.random_range(-noise..noise)).clamp(0.0, 1.0))
+                .collect();
+            let mse: f64 = a
+                .iter()
+                .zip(&b)
+                .map(|(x, y)| (*x as f64 - *y as f64).powi(2))
+                .sum::<f64>()
+                / a.len() as f64;
             assert!((psnr(&a, &b) - (-10.0 * mse.log10())).abs() < 1e-4);
             let (got, want) = (ssim(&a, &b, w, h, 3), ssim_reference(&a, &b, w, h, 3));
-            assert!((got - want).abs() < 1e-4, "{w}x{h} noise {noise}: {got} vs {want}");
+            assert!(
+                (got - want).abs() < 1e-4,
+                "{w}x{h} noise {noise}: {got} vs {want}"
+            );
         }
     }
     let a: Vec<f32> = (0..16 * 16).map(|i| (i % 7) as f32 / 7.0).collect();

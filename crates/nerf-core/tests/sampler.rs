@@ -10,13 +10,22 @@ fn check_sorted_inside(s: &RaySamples, near: f32, far: f32) {
     for r in 0..s.num_rays() {
         let range = s.range(r);
         for i in range.clone() {
-            assert!(s.t_start[i] >= near - 1e-5 && s.t_end[i] <= far + 1e-5, "outside [{near}, {far}]");
-            assert!(s.t_start[i] <= s.t[i] && s.t[i] <= s.t_end[i], "evaluation point outside its interval");
+            assert!(
+                s.t_start[i] >= near - 1e-5 && s.t_end[i] <= far + 1e-5,
+                "outside [{near}, {far}]"
+            );
+            assert!(
+                s.t_start[i] <= s.t[i] && s.t[i] <= s.t_end[i],
+                "evaluation point outside its interval"
+            );
             assert!(s.t[i].is_finite());
         }
         for i in range.start + 1..range.end {
             assert!(s.t[i] >= s.t[i - 1], "not sorted");
-            assert!((s.t_start[i] - s.t_end[i - 1]).abs() < 1e-5, "intervals not contiguous");
+            assert!(
+                (s.t_start[i] - s.t_end[i - 1]).abs() < 1e-5,
+                "intervals not contiguous"
+            );
         }
     }
 }
@@ -51,7 +60,10 @@ fn pdf_with_zero_spike_and_uniform_weights() {
     check_sorted_inside(&z, 2.0, 6.0);
     assert_eq!(z.num_samples(), 64 + 32);
     let mid = z.t.iter().filter(|t| **t < 4.0).count() as f32 / z.num_samples() as f32;
-    assert!((mid - 0.5).abs() < 0.1, "all-zero weights should sample uniformly, got {mid}");
+    assert!(
+        (mid - 0.5).abs() < 0.1,
+        "all-zero weights should sample uniformly, got {mid}"
+    );
     // One spike: the new points fall inside that bin.
     let mut w = vec![0.0; 32];
     w[10] = 1.0;
@@ -59,7 +71,10 @@ fn pdf_with_zero_spike_and_uniform_weights() {
     check_sorted_inside(&spike, 2.0, 6.0);
     let (lo, hi) = (c.t_start[10], c.t_end[10]);
     let inside = spike.t.iter().filter(|t| **t >= lo && **t <= hi).count();
-    assert!(inside >= 60, "only {inside} samples in the spike bin [{lo}, {hi}]");
+    assert!(
+        inside >= 60,
+        "only {inside} samples in the spike bin [{lo}, {hi}]"
+    );
     // Uniform weights behave like all-zero ones.
     let u = sample_pdf(&c, &vec![0.5; 32], 64, None::<&mut StdRng>);
     check_sorted_inside(&u, 2.0, 6.0);
@@ -97,23 +112,44 @@ proptest! {
 #[test]
 fn marching_skips_empty_cells_and_keeps_occupied_ones() {
     let aabb = [[-1.0f32; 3], [1.0; 3]];
-    let mut grid = OccupancyGrid::new(OccupancyConfig { resolution: 16, ..Default::default() }, aabb);
+    let mut grid = OccupancyGrid::new(
+        OccupancyConfig {
+            resolution: 16,
+            ..Default::default()
+        },
+        aabb,
+    );
     let mut rng = StdRng::seed_from_u64(3);
     // A slab |z| < 0.25 is solid.
-    grid.update(0, 0.01, &mut rng, &mut |p: &[f32]| p.chunks(3).map(|q| if q[2].abs() < 0.25 { 50.0 } else { 0.0 }).collect());
+    grid.update(0, 0.01, &mut rng, &mut |p: &[f32]| {
+        p.chunks(3)
+            .map(|q| if q[2].abs() < 0.25 { 50.0 } else { 0.0 })
+            .collect()
+    });
     let mut rays = Rays::default();
     rays.push([0.1, 0.2, 3.0], [0.0, 0.0, -1.0]);
     rays.push([5.0, 5.0, 5.0], [0.0, 0.0, -1.0]); // misses the box
-    let cfg = MarchConfig { step: 0.01, cone_angle: 0.0, max_step: 1.0, max_samples: 1024 };
+    let cfg = MarchConfig {
+        step: 0.01,
+        cone_angle: 0.0,
+        max_step: 1.0,
+        max_samples: 1024,
+    };
     let full = march(&rays, aabb, 0.0, 10.0, None, &cfg, None::<&mut StdRng>);
     let skip = march(&rays, aabb, 0.0, 10.0, Some(&grid), &cfg, None::<&mut StdRng>);
     assert_eq!(full.range(0).len(), 200, "2 units at step 0.01");
     assert!(full.range(1).is_empty() && skip.range(1).is_empty());
     let kept = skip.range(0).len();
-    assert!((45..=70).contains(&kept), "kept {kept} samples, slab covers ~50 steps (plus cell rounding)");
+    assert!(
+        (45..=70).contains(&kept),
+        "kept {kept} samples, slab covers ~50 steps (plus cell rounding)"
+    );
     for i in skip.range(0) {
         let z = 3.0 - skip.t[i];
-        assert!(z.abs() < 0.25 + 2.0 / 16.0, "sample at z = {z} outside the occupied cells");
+        assert!(
+            z.abs() < 0.25 + 2.0 / 16.0,
+            "sample at z = {z} outside the occupied cells"
+        );
     }
     check_sorted_inside(&full, 2.0, 4.0);
 }

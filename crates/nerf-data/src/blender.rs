@@ -341,6 +341,32 @@ fn parse_frames(json: &Path, split: Split) -> Result<Vec<FrameJob>> {
     Ok(jobs)
 }
 
+/// A camera of a transforms json, without its image (`render --cameras`).
+#[derive(Clone, Debug)]
+pub struct FrameCamera {
+    /// `file_path` as written in the json.
+    pub file_path: String,
+    pub camera: Camera,
+    pub time: Option<f64>,
+}
+
+/// Reads every frame's camera, in file order. Frames whose json states no image size (`w`, `h`)
+/// get `default_size` (with `camera_angle_x`, the focal follows that size).
+pub fn read_cameras(json: &Path, default_size: (u32, u32)) -> Result<Vec<FrameCamera>> {
+    parse_frames(json, Split::Test)?
+        .into_iter()
+        .map(|job| {
+            let size = job.camera.size.unwrap_or(default_size);
+            let (intrinsics, _) = resolve_intrinsics(&job, size, 1)?;
+            Ok(FrameCamera {
+                file_path: job.file_path,
+                camera: Camera::new(intrinsics, job.pose),
+                time: job.time,
+            })
+        })
+        .collect()
+}
+
 fn read_transforms(json: &Path) -> Result<TransformsFile> {
     let bytes = crate::error::read_file(json)?;
     let text =

@@ -242,6 +242,17 @@ fn sweep<const D: usize, const C: usize>(
     }
 }
 
+/// Entries per dirty-flag block: levels hold a multiple of 8 entries, so blocks never straddle
+/// two levels and each level's flags can be written by its own thread.
+const BLOCK_ENTRIES: usize = 8;
+
+/// Accumulated table gradient and which blocks of entries it touched.
+#[derive(Debug)]
+struct GradBuffer {
+    grad: Vec<f32>,
+    dirty: Vec<bool>,
+}
+
 /// A hash grid: configuration, host table, gradient buffer and its optimiser.
 #[derive(Debug)]
 pub struct HashGrid {
@@ -250,7 +261,7 @@ pub struct HashGrid {
     /// `[entries, F]`, level after level.
     table: RwLock<Vec<f32>>,
     /// dL/dtable accumulated by backward passes until the next optimiser step.
-    grads: Mutex<Vec<f32>>,
+    grads: Mutex<GradBuffer>,
     adam: Mutex<SparseAdam>,
 }
 
@@ -279,7 +290,10 @@ impl HashGrid {
             entries * config.features,
             "table size for {config:?}"
         );
-        let grads = vec![0.0; table.len()];
+        let grads = GradBuffer {
+            grad: vec![0.0; table.len()],
+            dirty: vec![false; entries.div_ceil(BLOCK_ENTRIES)],
+        };
         let adam = SparseAdam::new(table.len());
         Arc::new(HashGrid {
             config,
@@ -384,14 +398,17 @@ impl HashGrid {
     fn accumulate<const D: usize, const C: usize>(&self, positions: &[f32], grad_out: &[f32]) {
         let f_n = self.config.features;
         let width = self.levels.len() * f_n;
-        let mut grad = self.grads.lock().unwrap_or_else(|e| e.into_inner());
-        // Split the gradient buffer by level (levels are contiguous).
+        let mut buf = self.grads.lock().unwrap_or_else(|e| e.into_inner());
+        let GradBuffer { grad, dirty } = &mut *buf;
+        // Split the gradient buffer and the dirty flags by level (levels are contiguous).
         let mut grad_parts = Vec::new();
-        let mut rest = grad.as_mut_slice();
+        let (mut rest, mut rest_dirty) = (grad.as_mut_slice(), dirty.as_mut_slice());
         for level in &self.levels {
             let (a, b) = std::mem::take(&mut rest).split_at_mut(level.size * f_n);
-            grad_parts.push(a);
+            let (da, db) = std::mem::take(&mut rest_dirty).split_at_mut(level.size / BLOCK_ENTRIES);
+            grad_parts.push((a, da));
             rest = b;
+            rest_dirty = db;
         }
         // Each level reads its own columns of the upstream gradient: a strided stream the
         // hardware prefetcher follows, cheaper than transposing the whole matrix first.
@@ -399,20 +416,18 @@ impl HashGrid {
             .into_par_iter()
             .enumerate()
             .zip(&self.levels)
-            .for_each(|((l, g), level)| {
+            .for_each(|((l, (g, dirty)), level)| {
                 let offset = level.offset;
                 sweep::<D, C>(level, positions, (g.as_ptr(), offset, f_n), |p, idx, w| {
                     let up = &grad_out[p * width + l * f_n..p * width + (l + 1) * f_n];
-                    if f_n == 2 {
-                        let (u0, u1) = (up[0], up[1]);
-                        for k in 0..C {
-                            let i = (idx[k] as usize - offset) * 2;
-                            g[i] += w[k] * u0;
-                            g[i + 1] += w[k] * u1;
-                        }
-                    } else {
-                        for k in 0..C {
-                            let i = (idx[k] as usize - offset) * f_n;
+                    for k in 0..C {
+                        let e = idx[k] as usize - offset;
+                        dirty[e / BLOCK_ENTRIES] = true;
+                        let i = e * f_n;
+                        if f_n == 2 {
+                            g[i] += w[k] * up[0];
+                            g[i + 1] += w[k] * up[1];
+                        } else {
                             for f in 0..f_n {
                                 g[i + f] += w[k] * up[f];
                             }
@@ -479,31 +494,42 @@ impl HashGrid {
 
     /// Clears accumulated gradients (when a step is skipped).
     pub fn zero_grad(&self) {
-        let mut grad = self.grads.lock().unwrap_or_else(|e| e.into_inner());
-        grad.par_chunks_mut(1 << 16).for_each(|c| c.fill(0.0));
+        let mut buf = self.grads.lock().unwrap_or_else(|e| e.into_inner());
+        buf.grad.par_chunks_mut(1 << 16).for_each(|c| c.fill(0.0));
+        buf.dirty.fill(false);
     }
 
     /// Number of table entries with a non-zero gradient since the last step.
     pub fn touched(&self) -> usize {
-        let grad = self.grads.lock().unwrap_or_else(|e| e.into_inner());
-        grad.chunks(self.config.features)
+        let buf = self.grads.lock().unwrap_or_else(|e| e.into_inner());
+        buf.grad
+            .chunks(self.config.features)
             .filter(|r| r.iter().any(|v| *v != 0.0))
             .count()
     }
 
     /// Dense copy of the accumulated table gradient (tests and diagnostics).
     pub fn grad(&self) -> Vec<f32> {
-        self.grads.lock().unwrap_or_else(|e| e.into_inner()).clone()
+        self.grads.lock().unwrap_or_else(|e| e.into_inner()).grad.clone()
     }
 
     /// Adam on the entries with a gradient only, then clears the gradients. Entries untouched
     /// this step keep their value and their moments (Instant-NGP skips zero-gradient entries too).
     /// Returns the number of entries updated.
     pub fn adam_step(&self, params: &AdamParams, lr: f64) -> usize {
-        let mut grad = self.grads.lock().unwrap_or_else(|e| e.into_inner());
+        let mut buf = self.grads.lock().unwrap_or_else(|e| e.into_inner());
+        let GradBuffer { grad, dirty } = &mut *buf;
         let mut table = self.table.write().unwrap_or_else(|e| e.into_inner());
         let mut adam = self.adam.lock().unwrap_or_else(|e| e.into_inner());
-        adam.step(params, lr, &mut table, &mut grad, self.config.features)
+        adam.step(
+            params,
+            lr,
+            &mut table,
+            grad,
+            self.config.features,
+            dirty,
+            BLOCK_ENTRIES,
+        )
     }
 
     /// Optimiser state for checkpoints: (step, first moments, second moments).

@@ -34,7 +34,9 @@ pub fn march(
     for r in 0..rays.len() {
         let (o, d) = (rays.origin(r), rays.direction(r));
         let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        let Some((t0, t1)) = intersect_aabb(o, d, aabb[0], aabb[1]).filter(|_| norm > 0.0 && norm.is_finite()) else {
+        let Some((t0, t1)) =
+            intersect_aabb(o, d, aabb[0], aabb[1]).filter(|_| norm > 0.0 && norm.is_finite())
+        else {
             out.finish_ray();
             continue;
         };

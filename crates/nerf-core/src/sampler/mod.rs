@@ -32,7 +32,10 @@ impl RaySamples {
     pub fn with_rays(num_rays: usize) -> Self {
         let mut offsets = Vec::with_capacity(num_rays + 1);
         offsets.push(0);
-        RaySamples { offsets, ..Default::default() }
+        RaySamples {
+            offsets,
+            ..Default::default()
+        }
     }
 
     pub fn num_rays(&self) -> usize {
@@ -103,11 +106,18 @@ impl RaySamples {
             let range = self.range(r);
             let last = range.end.wrapping_sub(1);
             for s in range {
-                let len = if open_far && s == last { 1e10 } else { (self.t_end[s] - self.t_start[s]).max(0.0) };
+                let len = if open_far && s == last {
+                    1e10
+                } else {
+                    (self.t_end[s] - self.t_start[s]).max(0.0)
+                };
                 deltas.push(len * norm);
             }
         }
-        RayLayout { offsets: Arc::new(self.offsets.clone()), deltas: Arc::new(deltas) }
+        RayLayout {
+            offsets: Arc::new(self.offsets.clone()),
+            deltas: Arc::new(deltas),
+        }
     }
 
     /// Keeps the samples whose flag is set (e.g. after early termination or alpha culling).

@@ -12,7 +12,12 @@ use super::RaySamples;
 /// so all-zero or NaN-free degenerate weights give uniform sampling; negative or non-finite
 /// weights count as zero. With `rng`, the n quantiles are stratified-jittered; without, they
 /// are the bin centres (k + 0.5)/n.
-pub fn sample_pdf(coarse: &RaySamples, weights: &[f32], n: usize, mut rng: Option<&mut impl Rng>) -> RaySamples {
+pub fn sample_pdf(
+    coarse: &RaySamples,
+    weights: &[f32],
+    n: usize,
+    mut rng: Option<&mut impl Rng>,
+) -> RaySamples {
     let mut out = RaySamples::with_rays(coarse.num_rays());
     let mut edges: Vec<f32> = Vec::new();
     let mut cdf: Vec<f64> = Vec::new();
@@ -48,7 +53,11 @@ pub fn sample_pdf(coarse: &RaySamples, weights: &[f32], n: usize, mut rng: Optio
                 bin += 1;
             }
             let (c0, c1) = (cdf[bin], cdf[bin + 1]);
-            let frac = if c1 - c0 > 1e-12 { ((u - c0) / (c1 - c0)).clamp(0.0, 1.0) } else { 0.5 };
+            let frac = if c1 - c0 > 1e-12 {
+                ((u - c0) / (c1 - c0)).clamp(0.0, 1.0)
+            } else {
+                0.5
+            };
             let t = edges[bin] + (edges[bin + 1] - edges[bin]) * frac as f32;
             points.push(t.clamp(lo, hi));
         }

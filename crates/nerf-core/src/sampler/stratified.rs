@@ -18,7 +18,13 @@ pub enum Spacing {
 
 /// `n` stratified intervals per ray over `[near[r], far[r]]`. With `rng`, each sample is
 /// uniform within its bin; without, at the bin midpoint. Rays with far ≤ near get no samples.
-pub fn stratified(near: &[f32], far: &[f32], n: usize, spacing: Spacing, mut rng: Option<&mut impl Rng>) -> RaySamples {
+pub fn stratified(
+    near: &[f32],
+    far: &[f32],
+    n: usize,
+    spacing: Spacing,
+    mut rng: Option<&mut impl Rng>,
+) -> RaySamples {
     let mut out = RaySamples::with_rays(near.len());
     out.t.reserve(near.len() * n);
     for (&a, &b) in near.iter().zip(far) {

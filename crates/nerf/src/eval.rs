@@ -1,0 +1,75 @@
+//! Held-out evaluation: PSNR and SSIM per view and their means.
+
+use std::time::Instant;
+
+use nerf_core::metrics::{psnr, ssim};
+use nerf_data::Dataset;
+use serde::{Deserialize, Serialize};
+
+use crate::trainer::Trainer;
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ViewScore {
+    pub view: usize,
+    pub name: String,
+    pub psnr: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ssim: Option<f64>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct EvalResult {
+    pub split: String,
+    pub step: usize,
+    pub train_seconds: f64,
+    pub views: Vec<ViewScore>,
+    pub mean_psnr: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_ssim: Option<f64>,
+    /// Mean field evaluations per ray while rendering.
+    pub samples_per_ray: f64,
+    pub render_seconds: f64,
+}
+
+/// Up to three test views spread over the split (cheap periodic evaluation during training).
+pub fn quick_views(dataset: &Dataset) -> Vec<usize> {
+    let t = &dataset.test;
+    match t.len() {
+        0..=3 => t.clone(),
+        n => vec![t[0], t[n / 2], t[n - 1]],
+    }
+}
+
+/// Renders `views` and scores them against their images (mean PSNR is the mean of per-view
+/// PSNRs, as the NeRF papers report).
+pub fn evaluate(t: &Trainer, views: &[usize], with_ssim: bool) -> EvalResult {
+    let start = Instant::now();
+    let mut scores = Vec::new();
+    let mut spr = 0.0;
+    for &v in views {
+        let view = &t.dataset.views[v];
+        let rays = t.dataset.view_rays(v);
+        let r = t
+            .model
+            .render_rays(&rays, &t.cfg, t.dataset.background, &t.device);
+        spr += r.samples_per_ray;
+        let (w, h) = (view.image.width as usize, view.image.height as usize);
+        scores.push(ViewScore {
+            view: v,
+            name: view.name.clone(),
+            psnr: psnr(&r.rgb, &view.image.data),
+            ssim: with_ssim.then(|| ssim(&r.rgb, &view.image.data, w, h, 3)),
+        });
+    }
+    let n = scores.len().max(1) as f64;
+    EvalResult {
+        split: "test".into(),
+        step: t.step,
+        train_seconds: t.elapsed,
+        mean_psnr: scores.iter().map(|s| s.psnr).sum::<f64>() / n,
+        mean_ssim: with_ssim.then(|| scores.iter().filter_map(|s| s.ssim).sum::<f64>() / n),
+        views: scores,
+        samples_per_ray: spr / n,
+        render_seconds: start.elapsed().as_secs_f64(),
+    }
+}

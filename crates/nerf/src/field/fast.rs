@@ -1,0 +1,116 @@
+//! The fast field (Instant-NGP recipe): multiresolution hash grid → tiny density MLP → log
+//! density and geometry features; spherical-harmonics view encoding + features → colour MLP.
+//!
+//! The hash table lives on the host (see `nerf_core::encoding::hash_grid`) and is shared by
+//! clones of the module (`valid()` copies for inference see the same table).
+
+use std::sync::Arc;
+
+use burn::config::Config;
+use burn::module::Module;
+use burn::nn::{Linear, LinearConfig};
+use burn::tensor::activation::sigmoid;
+use burn::tensor::{Device, Tensor};
+use nerf_core::encoding::spherical_harmonics;
+use nerf_core::encoding::{HashGrid, HashGridConfig};
+use nerf_core::mlp::{Mlp, MlpConfig};
+
+use super::FieldOutput;
+
+#[derive(Config, Debug)]
+pub struct FastFieldConfig {
+    pub grid: HashGridConfig,
+    /// Width of the density MLP's hidden layer.
+    #[config(default = 64)]
+    pub hidden: usize,
+    /// Outputs of the density MLP: log density plus geometry features.
+    #[config(default = 16)]
+    pub geo_features: usize,
+    #[config(default = 64)]
+    pub color_hidden: usize,
+    #[config(default = 2)]
+    pub color_layers: usize,
+    #[config(default = 4)]
+    pub sh_degree: usize,
+    /// Extra raw outputs from a linear head on the geometry features (view independent).
+    #[config(default = 0)]
+    pub extra_outputs: usize,
+    /// Upper clamp of the log density (σ ≤ e^11 ≈ 6e4) so one bad step cannot overflow.
+    #[config(default = 11.0)]
+    pub max_log_density: f32,
+}
+
+impl FastFieldConfig {
+    pub fn init(&self, device: &Device, seed: u64) -> FastField {
+        let grid = HashGrid::new(self.grid.clone(), seed);
+        self.init_with_grid(device, grid)
+    }
+
+    /// A field around an existing grid (checkpoint loading).
+    pub fn init_with_grid(&self, device: &Device, grid: Arc<HashGrid>) -> FastField {
+        let sh = self.sh_degree * self.sh_degree;
+        FastField {
+            density: MlpConfig::new(self.grid.output_dim(), self.hidden, 1, self.geo_features).init(device),
+            color: MlpConfig::new(self.geo_features + sh, self.color_hidden, self.color_layers, 3)
+                .init(device),
+            extra: (self.extra_outputs > 0)
+                .then(|| LinearConfig::new(self.geo_features, self.extra_outputs).init(device)),
+            grid,
+            sh_degree: self.sh_degree,
+            max_log_density: self.max_log_density,
+        }
+    }
+}
+
+#[derive(Module, Debug)]
+pub struct FastField {
+    pub density: Mlp,
+    pub color: Mlp,
+    pub extra: Option<Linear>,
+    #[module(skip)]
+    pub grid: Arc<HashGrid>,
+    pub sh_degree: usize,
+    pub max_log_density: f32,
+}
+
+impl FastField {
+    /// Geometry features `[S, G]` for positions normalised to [0, 1]^D.
+    fn geometry(&self, normalized: Tensor<2>) -> Tensor<2> {
+        let enc = nerf_core::profile::span("fwd.hash_encode", || self.grid.encode(normalized));
+        nerf_core::profile::span("fwd.density_mlp", || self.density.forward(enc))
+    }
+
+    fn sigma(&self, geo: &Tensor<2>) -> Tensor<2> {
+        let n = geo.dims()[0];
+        geo.clone()
+            .slice([0..n, 0..1])
+            .clamp_max(self.max_log_density)
+            .exp()
+    }
+
+    /// Density only, `[S, 1]` (occupancy updates, early termination).
+    pub fn density(&self, normalized: Tensor<2>) -> Tensor<2> {
+        self.sigma(&self.geometry(normalized))
+    }
+
+    /// Full query. `normalized`: `[S, D]` positions in [0, 1]^D; `dirs`: `[S, 3]` unit view
+    /// directions on the host (they never need gradients).
+    pub fn forward(&self, normalized: Tensor<2>, dirs: &[f32]) -> FieldOutput {
+        let device = normalized.device();
+        let geo = self.geometry(normalized);
+        let sigma = self.sigma(&geo);
+        let n = geo.dims()[0];
+        let sh = Tensor::<2>::from_data(
+            burn::tensor::TensorData::new(
+                spherical_harmonics::encode(dirs, self.sh_degree),
+                [n, self.sh_degree * self.sh_degree],
+            ),
+            &device,
+        );
+        let rgb = nerf_core::profile::span("fwd.color_mlp", || {
+            sigmoid(self.color.forward(Tensor::cat(vec![geo.clone(), sh], 1)))
+        });
+        let extra = self.extra.as_ref().map(|head| head.forward(geo));
+        FieldOutput { sigma, rgb, extra }
+    }
+}

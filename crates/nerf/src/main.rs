@@ -1,0 +1,402 @@
+//! `nerf`: train, evaluate and render static neural radiance fields.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use nerf::config::{Preset, TrainConfig};
+use nerf::render::{FrameWriter, PathKind, default_path, path_cameras};
+use nerf::trainer::{CHECKPOINT, Trainer, load_dataset};
+use nerf_data::LoadOptions;
+use nerf_data::error::{DataError, Result};
+
+#[derive(Parser)]
+#[command(
+    name = "nerf",
+    version,
+    about = "Neural radiance fields for static scenes, on the CPU by default"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Train a radiance field on a folder of posed images (Blender, LLFF, COLMAP) or a tiny-NeRF .npz.
+    Train(TrainArgs),
+    /// Score a trained run on its held-out views: PSNR and SSIM per view, written to RUN_DIR/eval.json.
+    Eval {
+        /// Run folder written by `nerf train`.
+        run_dir: PathBuf,
+        /// Which split to score.
+        #[arg(long, default_value = "test", value_parser = ["test", "val", "train"])]
+        split: String,
+    },
+    /// Render a trained run along a camera path or at the cameras of a Blender-format transforms file.
+    Render(RenderArgs),
+    /// Write LLFF's poses_bounds.npy from a COLMAP sparse model (the "make your own dataset" step).
+    Colmap2poses {
+        /// A capture folder with sparse/0 (or sparse/), or the model folder itself.
+        dir: PathBuf,
+        /// Output file (default: DIR/poses_bounds.npy).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Generate a synthetic scene with ground-truth depth and optical flow (Blender / D-NeRF format).
+    Synth {
+        /// Output folder.
+        out: PathBuf,
+        /// static, dynamic or static_video.
+        #[arg(long, default_value = "static")]
+        preset: nerf_data::synth::Preset,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Image width and height (default: the preset's).
+        #[arg(long, num_args = 2, value_names = ["W", "H"])]
+        size: Option<Vec<u32>>,
+        /// Training views (static) or video frames (dynamic presets).
+        #[arg(long)]
+        frames: Option<usize>,
+        /// Held-out test views.
+        #[arg(long)]
+        test_views: Option<usize>,
+    },
+}
+
+#[derive(clap::Args)]
+struct TrainArgs {
+    /// Dataset folder or .npz file; the format is detected.
+    data: PathBuf,
+    /// Run folder for checkpoints, logs and renders (default: runs/<data name>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    #[arg(long, value_enum, default_value = "fast")]
+    preset: Preset,
+    /// Stop after this many steps (default: 20000 fast, 200000 vanilla).
+    #[arg(long)]
+    steps: Option<usize>,
+    /// Stop after this many seconds of training (evaluation pauses excluded).
+    #[arg(long)]
+    time_budget: Option<f64>,
+    /// Integer image downscale factor.
+    #[arg(long, default_value_t = 1)]
+    downscale: u32,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Continue from RUN_DIR/checkpoint.bin (budgets given here replace the saved ones).
+    #[arg(long)]
+    resume: bool,
+    /// Hold out every N-th view for testing (default: the format's convention).
+    #[arg(long)]
+    holdout: Option<usize>,
+    /// Composite RGBA images over black instead of white (Blender).
+    #[arg(long)]
+    black_background: bool,
+    /// Forward-facing scenes: do not warp rays to NDC.
+    #[arg(long)]
+    no_ndc: bool,
+    /// Fast preset: march every step through the box instead of skipping empty space.
+    #[arg(long)]
+    no_occupancy: bool,
+    /// Fast preset: keep sampling rays after they become opaque (when rendering; training
+    /// never terminates early unless --set fast.train_early_termination=true).
+    #[arg(long)]
+    no_early_termination: bool,
+    /// Evaluate a few held-out views every SECS seconds of training (0 = never).
+    #[arg(long, default_value_t = 0.0)]
+    eval_every: f64,
+    /// Checkpoint every N steps (default: 500 fast, 50 vanilla).
+    #[arg(long)]
+    checkpoint_every: Option<usize>,
+    /// Override the learning rate.
+    #[arg(long)]
+    lr: Option<f64>,
+    /// Skip the evaluation and path render after training.
+    #[arg(long)]
+    no_render: bool,
+    /// burn backend: flex (default CPU), ndarray, wgpu, cuda or auto.
+    #[arg(long, default_value = "flex")]
+    device: String,
+    /// Override any setting, e.g. --set fast.grid.log2_table=17 --set fast.color_layers=1.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+}
+
+#[derive(clap::Args)]
+struct RenderArgs {
+    /// Run folder written by `nerf train`.
+    run_dir: PathBuf,
+    /// Render exactly the cameras of this Blender-format transforms file, one PNG per frame in file order.
+    #[arg(long)]
+    cameras: Option<PathBuf>,
+    /// Camera path (default: orbit for objects, spiral for forward-facing scenes).
+    #[arg(long, value_enum)]
+    path: Option<PathKind>,
+    /// Frames on the path.
+    #[arg(long, default_value_t = 40)]
+    frames: usize,
+    /// Output folder (default: RUN_DIR/render).
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+fn main() -> ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Train(args) => train(args),
+        Command::Eval { run_dir, split } => eval(&run_dir, &split),
+        Command::Render(args) => render(args),
+        Command::Colmap2poses { dir, out } => {
+            let model_dir = nerf_data::colmap::find_model_dir(&dir).ok_or_else(|| {
+                DataError::invalid(
+                    &dir,
+                    "no COLMAP model found (looked for cameras.bin|txt in the folder, sparse/0/ and sparse/)",
+                )
+            })?;
+            let model = nerf_data::colmap::read_model(&model_dir)?;
+            let pb = nerf_data::colmap::poses_bounds(&model, &model_dir)?;
+            let out = out.unwrap_or_else(|| dir.join("poses_bounds.npy"));
+            pb.write(&out)?;
+            println!(
+                "wrote {} ({} images) from {}",
+                out.display(),
+                pb.rows.len(),
+                model_dir.display()
+            );
+            Ok(())
+        }
+        Command::Synth {
+            out,
+            preset,
+            seed,
+            size,
+            frames,
+            test_views,
+        } => {
+            let mut cfg = nerf_data::synth::SynthConfig::new(preset).with_seed(seed);
+            if let Some(s) = size {
+                cfg = cfg.with_size(s[0], s[1]);
+            }
+            if frames.is_some() || test_views.is_some() {
+                let (f, t) = (frames.unwrap_or(cfg.frames), test_views.unwrap_or(cfg.test_views));
+                cfg = cfg.with_views(f, t);
+            }
+            cfg.validate().map_err(|m| DataError::invalid(&out, m))?;
+            let summary = nerf_data::synth::generate(&cfg, &out)?;
+            println!(
+                "wrote {} scene to {}: {} train, {} test views, {} files",
+                preset,
+                out.display(),
+                summary.train_views,
+                summary.test_views,
+                summary.files_written
+            );
+            Ok(())
+        }
+    }
+}
+
+fn default_run_dir(data: &Path) -> PathBuf {
+    let name = data
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "run".into());
+    PathBuf::from("runs").join(name)
+}
+
+fn train(args: TrainArgs) -> Result<()> {
+    let run_dir = args.out.clone().unwrap_or_else(|| default_run_dir(&args.data));
+    let mut trainer = if args.resume {
+        if !run_dir.join(CHECKPOINT).exists() {
+            return Err(DataError::invalid(
+                &run_dir,
+                "--resume: no checkpoint.bin in the run folder",
+            ));
+        }
+        let t = Trainer::resume(&run_dir, |cfg| {
+            if let Some(s) = args.steps {
+                cfg.steps = s;
+            }
+            if args.time_budget.is_some() {
+                cfg.time_budget = args.time_budget;
+            }
+        })?;
+        eprintln!(
+            "resuming {} at step {} ({:.0} s trained)",
+            run_dir.display(),
+            t.step,
+            t.elapsed
+        );
+        t
+    } else {
+        let load = LoadOptions {
+            downscale: args.downscale.max(1),
+            background: args.black_background.then_some([0.0; 3]),
+            holdout: args.holdout,
+            ndc: !args.no_ndc,
+            spherify: false,
+        };
+        let mut cfg = TrainConfig::new(args.preset, args.data.clone(), load);
+        cfg.seed = args.seed;
+        if let Some(s) = args.steps {
+            cfg.steps = s;
+        }
+        cfg.time_budget = args.time_budget;
+        cfg.fast.use_occupancy = !args.no_occupancy;
+        cfg.fast.early_termination = !args.no_early_termination;
+        cfg.fast.train_early_termination &= !args.no_early_termination;
+        cfg.eval_every_secs = args.eval_every;
+        if let Some(c) = args.checkpoint_every {
+            cfg.checkpoint_every = c;
+        }
+        if let Some(lr) = args.lr {
+            cfg.lr_final *= lr / cfg.lr;
+            cfg.lr = lr;
+        }
+        cfg.device = args.device.clone();
+        let cfg = nerf::config::apply_overrides(&cfg, &args.overrides)
+            .map_err(|m| DataError::invalid(&args.data, m))?;
+        let dataset = load_dataset(&cfg)?;
+        Trainer::new(cfg, dataset, &run_dir)?
+    };
+    trainer.train(true)?;
+    eprintln!(
+        "trained {} steps in {:.1} s; checkpoint {}",
+        trainer.step,
+        trainer.elapsed,
+        run_dir.join(CHECKPOINT).display()
+    );
+    if !args.no_render {
+        let result = write_eval(&trainer, "test")?;
+        println!("mean_psnr {:.4}", result.mean_psnr);
+        let kind = default_path(&trainer.dataset);
+        let out = run_dir.join("render");
+        render_path(&trainer, kind, 40, &out)?;
+        eprintln!(
+            "rendered {} and psnr.png into {}",
+            out.join("path.gif").display(),
+            run_dir.display()
+        );
+    }
+    Ok(())
+}
+
+fn split_views(t: &Trainer, split: &str) -> Vec<usize> {
+    match split {
+        "train" => t.dataset.train.clone(),
+        "val" if !t.dataset.val.is_empty() => t.dataset.val.clone(),
+        _ => t.dataset.test.clone(),
+    }
+}
+
+fn write_eval(t: &Trainer, split: &str) -> Result<nerf::eval::EvalResult> {
+    let views = split_views(t, split);
+    if views.is_empty() {
+        return Err(DataError::invalid(
+            &t.cfg.data,
+            format!("the dataset has no {split} views"),
+        ));
+    }
+    let mut result = nerf::eval::evaluate(t, &views, true);
+    result.split = split.into();
+    let path = t.run_dir.join("eval.json");
+    let json = serde_json::to_vec_pretty(&result).map_err(|e| DataError::invalid(&path, e.to_string()))?;
+    nerf_data::image::write_atomic(&path, &json)?;
+    for v in &result.views {
+        println!(
+            "{:>4} {:<24} psnr {:7.3}  ssim {:.4}",
+            v.view,
+            v.name,
+            v.psnr,
+            v.ssim.unwrap_or(f64::NAN)
+        );
+    }
+    println!(
+        "{} views, {:.1} samples/ray, rendered in {:.1} s; mean_ssim {:.4}",
+        result.views.len(),
+        result.samples_per_ray,
+        result.render_seconds,
+        result.mean_ssim.unwrap_or(f64::NAN)
+    );
+    Ok(result)
+}
+
+fn eval(run_dir: &Path, split: &str) -> Result<()> {
+    let t = Trainer::resume(run_dir, |_| {})?;
+    let result = write_eval(&t, split)?;
+    println!("mean_psnr {:.4}", result.mean_psnr);
+    Ok(())
+}
+
+fn render_cameras(t: &Trainer, cameras: &[nerf_data::Camera], out: &Path, gif: &str) -> Result<()> {
+    let mut writer = FrameWriter::new(out, None)?;
+    let bar = indicatif::ProgressBar::new(cameras.len() as u64);
+    for (k, cam) in cameras.iter().enumerate() {
+        let rays = t.dataset.rays_for(cam, 0..cam.intrinsics.num_pixels() as u32);
+        let r = t
+            .model
+            .render_rays(&rays, &t.cfg, t.dataset.background, &t.device);
+        writer.push(
+            k,
+            cam.intrinsics.width,
+            cam.intrinsics.height,
+            r.rgb,
+            &r.depth,
+            &r.opacity,
+        )?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    writer.finish_gif(gif)
+}
+
+fn render_path(t: &Trainer, kind: PathKind, frames: usize, out: &Path) -> Result<()> {
+    render_cameras(t, &path_cameras(&t.dataset, kind, frames), out, "path.gif")
+}
+
+fn render(args: RenderArgs) -> Result<()> {
+    let t = Trainer::resume(&args.run_dir, |_| {})?;
+    let out = args.out.unwrap_or_else(|| args.run_dir.join("render"));
+    match args.cameras {
+        Some(json) => {
+            let first = &t.dataset.views[t.dataset.train.first().copied().unwrap_or(0)]
+                .camera
+                .intrinsics;
+            let cams = nerf_data::blender::read_cameras(&json, (first.width, first.height))?;
+            let cameras: Vec<_> = cams.iter().map(|c| c.camera).collect();
+            render_cameras(&t, &cameras, &out, "cameras.gif")?;
+            let names: Vec<&str> = cams.iter().map(|c| c.file_path.as_str()).collect();
+            let path = out.join("frames.json");
+            let json_out =
+                serde_json::to_vec_pretty(&names).map_err(|e| DataError::invalid(&path, e.to_string()))?;
+            nerf_data::image::write_atomic(&path, &json_out)?;
+            println!(
+                "rendered {} cameras from {} into {}",
+                cameras.len(),
+                json.display(),
+                out.display()
+            );
+        }
+        None => {
+            let kind = args.path.unwrap_or_else(|| default_path(&t.dataset));
+            render_path(&t, kind, args.frames, &out)?;
+            println!(
+                "rendered {} frames ({:?} path) into {}",
+                args.frames,
+                kind,
+                out.display()
+            );
+        }
+    }
+    Ok(())
+}

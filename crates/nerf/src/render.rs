@@ -1,0 +1,199 @@
+//! Rendering camera paths and camera files to PNG frames and an animated GIF.
+
+use std::path::Path;
+
+use nerf_data::camera::{Camera, Pose};
+use nerf_data::error::{DataError, Result};
+use nerf_data::math;
+use nerf_data::{Dataset, Image, SceneKind};
+
+/// A camera path to render.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum PathKind {
+    /// 360° orbit around the scene at the training cameras' mean radius and elevation.
+    Orbit,
+    /// NeRF's forward-facing spiral (LLFF scenes).
+    Spiral,
+}
+
+/// The default path for a scene: an orbit for objects, a spiral for forward-facing captures.
+pub fn default_path(dataset: &Dataset) -> PathKind {
+    match dataset.kind {
+        SceneKind::Object => PathKind::Orbit,
+        SceneKind::ForwardFacing => PathKind::Spiral,
+    }
+}
+
+/// Cameras along a path, with the intrinsics of the first training view.
+pub fn path_cameras(dataset: &Dataset, kind: PathKind, frames: usize) -> Vec<Camera> {
+    let intrinsics = dataset.views[dataset.train.first().copied().unwrap_or(0)]
+        .camera
+        .intrinsics;
+    let poses = match kind {
+        PathKind::Spiral => nerf_data::llff::spiral_path(dataset, frames),
+        PathKind::Orbit => orbit(dataset, frames),
+    };
+    poses.into_iter().map(|p| Camera::new(intrinsics, p)).collect()
+}
+
+/// An orbit around the centre of the scene box, in the plane perpendicular to the mean camera
+/// up vector, at the training cameras' mean distance and elevation.
+pub fn orbit(dataset: &Dataset, frames: usize) -> Vec<Pose> {
+    let center = [0, 1, 2].map(|a| 0.5 * (dataset.aabb[0][a] + dataset.aabb[1][a]) as f64);
+    let poses: Vec<Pose> = dataset
+        .train
+        .iter()
+        .map(|&v| dataset.views[v].camera.pose)
+        .collect();
+    let up = math::normalize(
+        poses
+            .iter()
+            .fold([0.0; 3], |acc, p| math::add(acc, math::column(&p.rotation, 1))),
+    );
+    let n = poses.len().max(1) as f64;
+    let radius = poses
+        .iter()
+        .map(|p| math::norm(math::sub(p.translation, center)))
+        .sum::<f64>()
+        / n;
+    let elevation = poses
+        .iter()
+        .map(|p| {
+            let d = math::sub(p.translation, center);
+            (math::dot(d, up) / math::norm(d).max(1e-12))
+                .clamp(-1.0, 1.0)
+                .asin()
+        })
+        .sum::<f64>()
+        / n;
+    // Any unit vector perpendicular to up starts the orbit.
+    let seed = if up[0].abs() < 0.9 {
+        [1.0, 0.0, 0.0]
+    } else {
+        [0.0, 1.0, 0.0]
+    };
+    let e1 = math::normalize(math::cross(up, seed));
+    let e2 = math::cross(up, e1);
+    (0..frames)
+        .map(|k| {
+            let theta = std::f64::consts::TAU * k as f64 / frames.max(1) as f64;
+            let dir = math::add(
+                math::scale(
+                    math::add(math::scale(e1, theta.cos()), math::scale(e2, theta.sin())),
+                    elevation.cos(),
+                ),
+                math::scale(up, elevation.sin()),
+            );
+            Pose::look_at(math::add(center, math::scale(dir, radius)), center, up)
+        })
+        .collect()
+}
+
+/// Frames rendered so far, written as they come.
+pub struct FrameWriter<'a> {
+    dir: &'a Path,
+    frames: Vec<Image>,
+    depth_range: Option<(f32, f32)>,
+}
+
+impl<'a> FrameWriter<'a> {
+    /// Writes into `dir` (created), and `dir/depth`, `dir/opacity`. `depth_range` fixes the
+    /// depth colour scale across frames (`None`: per frame).
+    pub fn new(dir: &'a Path, depth_range: Option<(f32, f32)>) -> Result<Self> {
+        for d in [dir.to_path_buf(), dir.join("depth"), dir.join("opacity")] {
+            std::fs::create_dir_all(&d).map_err(|e| DataError::io(&d, e))?;
+        }
+        Ok(FrameWriter {
+            dir,
+            frames: Vec::new(),
+            depth_range,
+        })
+    }
+
+    /// Saves frame `k`: colour, depth (near = bright) and opacity PNGs.
+    pub fn push(
+        &mut self,
+        k: usize,
+        width: u32,
+        height: u32,
+        rgb: Vec<f32>,
+        depth: &[f32],
+        opacity: &[f32],
+    ) -> Result<()> {
+        let name = format!("{k:04}.png");
+        let img = Image::from_data(width, height, 3, rgb);
+        img.save_png(&self.dir.join(&name))?;
+        let (lo, hi) = self.depth_range.unwrap_or_else(|| depth_range(depth, opacity));
+        let d: Vec<f32> = depth
+            .iter()
+            .zip(opacity)
+            .map(|(d, a)| {
+                // Expected depth is weighted by opacity; normalise it before mapping.
+                let z = if *a > 1e-3 { d / a } else { hi };
+                (1.0 - (z - lo) / (hi - lo).max(1e-6)).clamp(0.0, 1.0) * a.clamp(0.0, 1.0)
+            })
+            .collect();
+        Image::from_data(width, height, 1, d).save_png(&self.dir.join("depth").join(&name))?;
+        Image::from_data(width, height, 1, opacity.to_vec())
+            .save_png(&self.dir.join("opacity").join(&name))?;
+        self.frames.push(img);
+        Ok(())
+    }
+
+    /// Writes `name` (an animated GIF of the colour frames, 25 fps).
+    pub fn finish_gif(&self, name: &str) -> Result<()> {
+        let path = self.dir.join(name);
+        write_gif(&path, &self.frames, 4)
+    }
+}
+
+/// The 2nd–98th percentile of normalised depth over mostly opaque pixels.
+fn depth_range(depth: &[f32], opacity: &[f32]) -> (f32, f32) {
+    let mut z: Vec<f32> = depth
+        .iter()
+        .zip(opacity)
+        .filter(|(_, a)| **a > 0.5)
+        .map(|(d, a)| d / a)
+        .collect();
+    if z.is_empty() {
+        return (0.0, 1.0);
+    }
+    z.sort_by(f32::total_cmp);
+    (z[z.len() / 50], z[z.len() * 49 / 50])
+}
+
+/// Animated GIF from RGB frames, `delay_cs` hundredths of a second per frame, written atomically.
+pub fn write_gif(path: &Path, frames: &[Image], delay_cs: u16) -> Result<()> {
+    use image::codecs::gif::{GifEncoder, Repeat};
+    let mut bytes = Vec::new();
+    {
+        let mut enc = GifEncoder::new_with_speed(&mut bytes, 10);
+        enc.set_repeat(Repeat::Infinite)
+            .map_err(|e| DataError::invalid(path, e.to_string()))?;
+        for f in frames {
+            let rgba: Vec<u8> = f
+                .data
+                .chunks_exact(3)
+                .flat_map(|p| {
+                    [
+                        nerf_data::image::to_u8(p[0]),
+                        nerf_data::image::to_u8(p[1]),
+                        nerf_data::image::to_u8(p[2]),
+                        255,
+                    ]
+                })
+                .collect();
+            let buf = image::RgbaImage::from_raw(f.width, f.height, rgba)
+                .ok_or_else(|| DataError::invalid(path, "frame size mismatch"))?;
+            let frame = image::Frame::from_parts(
+                buf,
+                0,
+                0,
+                image::Delay::from_numer_denom_ms(delay_cs as u32 * 10, 1),
+            );
+            enc.encode_frame(frame)
+                .map_err(|e| DataError::invalid(path, e.to_string()))?;
+        }
+    }
+    nerf_data::image::write_atomic(path, &bytes)
+}
