@@ -266,62 +266,6 @@ impl OccupancyGrid {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use rand::{SeedableRng, rngs::StdRng};
-
-    #[test]
-    fn update_marks_dense_cells_only() {
-        let mut g = OccupancyGrid::new(
-            OccupancyConfig {
-                resolution: 16,
-                ..Default::default()
-            },
-            [[-1.0; 3], [1.0; 3]],
-        );
-        assert_eq!(g.occupied_fraction(), 1.0);
-        let mut rng = StdRng::seed_from_u64(0);
-        // A solid ball of radius 0.5.
-        let mut ball = |p: &[f32]| -> Vec<f32> {
-            p.chunks(3)
-                .map(|q| {
-                    if q.iter().map(|v| v * v).sum::<f32>() < 0.25 {
-                        100.0
-                    } else {
-                        0.0
-                    }
-                })
-                .collect()
-        };
-        g.update(0, 0.01, &mut rng, &mut ball);
-        assert!(g.is_occupied([0.0, 0.0, 0.0]));
-        assert!(!g.is_occupied([0.9, 0.9, 0.9]));
-        assert!(!g.is_occupied([2.0, 0.0, 0.0]), "outside the box");
-        let f = g.occupied_fraction();
-        let ball_fraction = 4.0 / 3.0 * std::f32::consts::PI * 0.125 / 8.0;
-        assert!(
-            f > 0.5 * ball_fraction && f < 2.0 * ball_fraction,
-            "{f} vs {ball_fraction}"
-        );
-    }
-
-    #[test]
-    fn cell_exit_reaches_the_next_boundary() {
-        let g = OccupancyGrid::new(
-            OccupancyConfig {
-                resolution: 4,
-                ..Default::default()
-            },
-            [[0.0; 3], [4.0; 3]],
-        );
-        let d = g.cell_exit([1.25, 1.5, 1.5], [1.0, 0.0, 0.0]);
-        assert!((d - 0.75).abs() < 1e-6);
-        let d = g.cell_exit([1.25, 1.5, 1.5], [-1.0, 0.0, 0.0]);
-        assert!((d - 0.25).abs() < 1e-6);
-    }
-}
-
 /// Per-view foreground masks as summed-area tables, for O(1) "any foreground in this window".
 struct ForegroundTable {
     width: usize,
@@ -391,4 +335,60 @@ pub fn carve_visual_hull(grid: &mut OccupancyGrid, dataset: &nerf_data::Dataset,
         Some(t.count(x0 as usize, y0 as usize, x1 as usize, y1 as usize) == 0)
     };
     grid.carve(views.len(), 2, &project)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{SeedableRng, rngs::StdRng};
+
+    #[test]
+    fn update_marks_dense_cells_only() {
+        let mut g = OccupancyGrid::new(
+            OccupancyConfig {
+                resolution: 16,
+                ..Default::default()
+            },
+            [[-1.0; 3], [1.0; 3]],
+        );
+        assert_eq!(g.occupied_fraction(), 1.0);
+        let mut rng = StdRng::seed_from_u64(0);
+        // A solid ball of radius 0.5.
+        let mut ball = |p: &[f32]| -> Vec<f32> {
+            p.chunks(3)
+                .map(|q| {
+                    if q.iter().map(|v| v * v).sum::<f32>() < 0.25 {
+                        100.0
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        };
+        g.update(0, 0.01, &mut rng, &mut ball);
+        assert!(g.is_occupied([0.0, 0.0, 0.0]));
+        assert!(!g.is_occupied([0.9, 0.9, 0.9]));
+        assert!(!g.is_occupied([2.0, 0.0, 0.0]), "outside the box");
+        let f = g.occupied_fraction();
+        let ball_fraction = 4.0 / 3.0 * std::f32::consts::PI * 0.125 / 8.0;
+        assert!(
+            f > 0.5 * ball_fraction && f < 2.0 * ball_fraction,
+            "{f} vs {ball_fraction}"
+        );
+    }
+
+    #[test]
+    fn cell_exit_reaches_the_next_boundary() {
+        let g = OccupancyGrid::new(
+            OccupancyConfig {
+                resolution: 4,
+                ..Default::default()
+            },
+            [[0.0; 3], [4.0; 3]],
+        );
+        let d = g.cell_exit([1.25, 1.5, 1.5], [1.0, 0.0, 0.0]);
+        assert!((d - 0.75).abs() < 1e-6);
+        let d = g.cell_exit([1.25, 1.5, 1.5], [-1.0, 0.0, 0.0]);
+        assert!((d - 0.25).abs() < 1e-6);
+    }
 }

@@ -34,6 +34,7 @@ fn run(device: &Device) -> Vec<Vec<f32>> {
             log2_table: 10,
             base_resolution: 4,
             finest_resolution: 32,
+            time_resolution: None,
         },
         7,
     );

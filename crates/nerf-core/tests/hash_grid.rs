@@ -15,6 +15,7 @@ fn small() -> HashGridConfig {
         log2_table: 10,
         base_resolution: 4,
         finest_resolution: 64,
+        time_resolution: None,
     }
 }
 
@@ -84,6 +85,7 @@ fn level_layout_follows_the_paper() {
     // Dense levels index bijectively.
     let l = Level {
         resolution: 5,
+        resolutions: [5; 4],
         offset: 0,
         size: 216,
         dense: true,
@@ -101,6 +103,7 @@ fn level_layout_follows_the_paper() {
     // Hashed indices stay in the table.
     let h = Level {
         resolution: 1000,
+        resolutions: [1000; 4],
         offset: 0,
         size: 1 << 10,
         dense: false,
@@ -255,4 +258,108 @@ fn sparse_adam_moves_only_touched_entries() {
     );
     assert_eq!(grid.touched(), 0, "gradients cleared after the step");
     assert!(grid.grad().iter().all(|g| *g == 0.0));
+}
+
+/// f64 definition for any dimension and per-dimension resolutions (space-time grids).
+fn encode_f64_nd(cfg: &HashGridConfig, table: &[f32], x: &[f64]) -> Vec<f64> {
+    let d = cfg.dims;
+    let primes: [u64; 4] = [1, 2_654_435_761, 805_459_861, 3_674_653_429];
+    let mut out = Vec::new();
+    for level in levels(cfg) {
+        let mut feats = vec![0.0; cfg.features];
+        for corner in 0..(1usize << d) {
+            let (mut w, mut dense_idx, mut stride, mut h) = (1.0, 0u64, 1u64, 0u32);
+            for a in 0..d {
+                let res = level.resolutions[a] as f64;
+                let p = x[a].clamp(0.0, 1.0) * res;
+                let base = p.floor().min(res - 1.0);
+                let up = (corner >> a) & 1;
+                let v = base as u64 + up as u64;
+                w *= if up == 1 { p - base } else { 1.0 - (p - base) };
+                dense_idx += v * stride;
+                stride *= level.resolutions[a] as u64 + 1;
+                h ^= (v * primes[a]) as u32;
+            }
+            let idx = if level.dense {
+                dense_idx
+            } else {
+                h as u64 % level.size as u64
+            };
+            for f in 0..cfg.features {
+                feats[f] += w * table[(level.offset + idx as usize) * cfg.features + f] as f64;
+            }
+        }
+        out.extend(feats);
+    }
+    out
+}
+
+#[test]
+fn space_time_grid_caps_time_resolution_and_differentiates() {
+    let cfg = HashGridConfig {
+        dims: 4,
+        levels: 5,
+        features: 2,
+        log2_table: 12,
+        base_resolution: 4,
+        finest_resolution: 64,
+        time_resolution: Some(7),
+    };
+    let lv = levels(&cfg);
+    assert!(
+        lv.iter()
+            .all(|l| l.resolutions[3] == l.resolution.min(7) && l.resolutions[0] == l.resolution)
+    );
+    let n_params = HashGrid::new(cfg.clone(), 0).num_params();
+    let table: Vec<f32> = (0..n_params)
+        .map(|i| ((i * 7_919) % 1000) as f32 / 500.0 - 1.0)
+        .collect();
+    let grid = HashGrid::with_table(cfg.clone(), table.clone());
+    let n = 40;
+    let mut rng = StdRng::seed_from_u64(8);
+    let pts: Vec<f32> = (0..4 * n).map(|_| rng.random_range(0.0..1.0)).collect();
+    let fused = grid.encode_host(&pts);
+    let width = cfg.output_dim();
+    for p in 0..n {
+        let x: Vec<f64> = pts[4 * p..4 * p + 4].iter().map(|v| *v as f64).collect();
+        let want = encode_f64_nd(&cfg, &table, &x);
+        for j in 0..width {
+            assert!(
+                (fused[p * width + j] as f64 - want[j]).abs() < 1e-4,
+                "point {p} feature {j}"
+            );
+        }
+    }
+    // Position gradient (including d/dt) against central differences of the f64 definition.
+    let dev = Device::flex().autodiff();
+    let upstream: Vec<f32> = (0..n * width).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let x = Tensor::<2>::from_data(TensorData::new(pts.clone(), [n, 4]), &dev).require_grad();
+    let up = Tensor::<2>::from_data(TensorData::new(upstream.clone(), [n, width]), &dev);
+    let g = (grid.encode(x.clone()) * up).sum().backward();
+    let dx = host(x.grad(&g).unwrap());
+    let finest = lv.last().unwrap().resolutions;
+    for p in 0..n {
+        for a in 0..4 {
+            let frac = (pts[4 * p + a] * finest[a] as f32).fract();
+            if !(0.01..0.99).contains(&frac) {
+                continue;
+            }
+            let loss = |delta: f64| -> f64 {
+                let mut x: Vec<f64> = pts[4 * p..4 * p + 4].iter().map(|v| *v as f64).collect();
+                x[a] += delta;
+                encode_f64_nd(&cfg, &table, &x)
+                    .iter()
+                    .zip(&upstream[p * width..])
+                    .map(|(e, u)| e * *u as f64)
+                    .sum()
+            };
+            let h = 1e-6;
+            let fd = (loss(h) - loss(-h)) / (2.0 * h);
+            assert!(
+                (dx[4 * p + a] as f64 - fd).abs() < 1e-3 * fd.abs().max(1.0),
+                "point {p} axis {a}: {} vs {fd}",
+                dx[4 * p + a]
+            );
+        }
+    }
 }

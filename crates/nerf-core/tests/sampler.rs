@@ -56,7 +56,7 @@ fn pdf_with_zero_spike_and_uniform_weights() {
     let c = coarse(32);
     let mut rng = StdRng::seed_from_u64(2);
     // All zero: samples spread uniformly over the bins.
-    let z = sample_pdf(&c, &vec![0.0; 32], 64, Some(&mut rng));
+    let z = sample_pdf(&c, &[0.0; 32], 64, Some(&mut rng));
     check_sorted_inside(&z, 2.0, 6.0);
     assert_eq!(z.num_samples(), 64 + 32);
     let mid = z.t.iter().filter(|t| **t < 4.0).count() as f32 / z.num_samples() as f32;
@@ -76,7 +76,7 @@ fn pdf_with_zero_spike_and_uniform_weights() {
         "only {inside} samples in the spike bin [{lo}, {hi}]"
     );
     // Uniform weights behave like all-zero ones.
-    let u = sample_pdf(&c, &vec![0.5; 32], 64, None::<&mut StdRng>);
+    let u = sample_pdf(&c, &[0.5; 32], 64, None::<&mut StdRng>);
     check_sorted_inside(&u, 2.0, 6.0);
     // Garbage weights (NaN, negative, infinite) are treated as zero, not propagated.
     let mut bad = vec![0.1; 32];

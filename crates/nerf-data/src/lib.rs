@@ -8,6 +8,7 @@ pub mod camera;
 pub mod colmap;
 pub mod dataset;
 pub mod error;
+pub mod flow;
 pub mod image;
 pub mod llff;
 pub mod load;

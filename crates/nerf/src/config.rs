@@ -144,6 +144,7 @@ impl TrainConfig {
                     log2_table: 17,
                     base_resolution: 16,
                     finest_resolution: 1024,
+                    time_resolution: None,
                 },
                 hidden: 64,
                 geo_features: 16,
@@ -162,7 +163,7 @@ impl TrainConfig {
                 },
                 // Many small steps learn faster per CPU second than few large ones.
                 target_samples: 1 << 13,
-                min_rays: 256,
+                min_rays: 64,
                 max_rays: 1 << 14,
             },
             vanilla: VanillaSettings {
@@ -186,6 +187,8 @@ impl TrainConfig {
         // About 512 steps across the box's diagonal.
         self.fast.march.step = extent * 3f32.sqrt() / 512.0;
         if dataset.kind == SceneKind::ForwardFacing {
+            // NDC depth is uniform in disparity over z ∈ [-1, 1]: 128 steps, as NSFF samples.
+            self.fast.march.step = 2.0 / 128.0;
             self.vanilla.raw_noise_std = 1.0;
             self.random_background = false;
         }

@@ -43,6 +43,16 @@ pub fn quick_views(dataset: &Dataset) -> Vec<usize> {
 /// Renders `views` and scores them against their images (mean PSNR is the mean of per-view
 /// PSNRs, as the NeRF papers report).
 pub fn evaluate(t: &Trainer, views: &[usize], with_ssim: bool) -> EvalResult {
+    evaluate_saving(t, views, with_ssim, None).unwrap_or_else(|e| unreachable!("no images are written: {e}"))
+}
+
+/// [`evaluate`], also writing each view as `DIR/<index>.png`: ground truth beside the render.
+pub fn evaluate_saving(
+    t: &Trainer,
+    views: &[usize],
+    with_ssim: bool,
+    save: Option<&std::path::Path>,
+) -> nerf_data::error::Result<EvalResult> {
     let start = Instant::now();
     let mut scores = Vec::new();
     let mut spr = 0.0;
@@ -54,6 +64,15 @@ pub fn evaluate(t: &Trainer, views: &[usize], with_ssim: bool) -> EvalResult {
             .render_rays(&rays, &t.cfg, t.dataset.background, &t.device);
         spr += r.samples_per_ray;
         let (w, h) = (view.image.width as usize, view.image.height as usize);
+        if let Some(dir) = save {
+            let mut pair = Vec::with_capacity(2 * w * h * 3);
+            for y in 0..h {
+                pair.extend_from_slice(&view.image.data[y * w * 3..(y + 1) * w * 3]);
+                pair.extend_from_slice(&r.rgb[y * w * 3..(y + 1) * w * 3]);
+            }
+            nerf_data::Image::from_data(2 * w as u32, h as u32, 3, pair)
+                .save_png(&dir.join(format!("{v:04}.png")))?;
+        }
         scores.push(ViewScore {
             view: v,
             name: view.name.clone(),
@@ -62,7 +81,7 @@ pub fn evaluate(t: &Trainer, views: &[usize], with_ssim: bool) -> EvalResult {
         });
     }
     let n = scores.len().max(1) as f64;
-    EvalResult {
+    Ok(EvalResult {
         split: "test".into(),
         step: t.step,
         train_seconds: t.elapsed,
@@ -71,5 +90,5 @@ pub fn evaluate(t: &Trainer, views: &[usize], with_ssim: bool) -> EvalResult {
         views: scores,
         samples_per_ray: spr / n,
         render_seconds: start.elapsed().as_secs_f64(),
-    }
+    })
 }

@@ -32,6 +32,9 @@ enum Command {
         /// Which split to score.
         #[arg(long, default_value = "test", value_parser = ["test", "val", "train"])]
         split: String,
+        /// Also write each view (ground truth | render) to RUN_DIR/eval/<view>.png.
+        #[arg(long)]
+        save_images: bool,
     },
     /// Render a trained run along a camera path or at the cameras of a Blender-format transforms file.
     Render(RenderArgs),
@@ -73,7 +76,8 @@ struct TrainArgs {
     out: Option<PathBuf>,
     #[arg(long, value_enum, default_value = "fast")]
     preset: Preset,
-    /// Stop after this many steps (default: 20000 fast, 200000 vanilla).
+    /// Stop after this many steps (default: 20000 fast, 200000 vanilla; unlimited when only
+    /// --time-budget is given).
     #[arg(long)]
     steps: Option<usize>,
     /// Stop after this many seconds of training (evaluation pauses excluded).
@@ -154,7 +158,11 @@ fn main() -> ExitCode {
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Train(args) => train(args),
-        Command::Eval { run_dir, split } => eval(&run_dir, &split),
+        Command::Eval {
+            run_dir,
+            split,
+            save_images,
+        } => eval(&run_dir, &split, save_images),
         Command::Render(args) => render(args),
         Command::Colmap2poses { dir, out } => {
             let model_dir = nerf_data::colmap::find_model_dir(&dir).ok_or_else(|| {
@@ -252,6 +260,10 @@ fn train(args: TrainArgs) -> Result<()> {
             cfg.steps = s;
         }
         cfg.time_budget = args.time_budget;
+        if args.steps.is_none() && args.time_budget.is_some() {
+            // A time budget alone runs until the time is up.
+            cfg.steps = usize::MAX / 4;
+        }
         cfg.fast.use_occupancy = !args.no_occupancy;
         cfg.fast.early_termination = !args.no_early_termination;
         cfg.fast.train_early_termination &= !args.no_early_termination;
@@ -264,9 +276,10 @@ fn train(args: TrainArgs) -> Result<()> {
             cfg.lr = lr;
         }
         cfg.device = args.device.clone();
+        let dataset = load_dataset(&cfg)?;
+        cfg.adapt_to(&dataset);
         let cfg = nerf::config::apply_overrides(&cfg, &args.overrides)
             .map_err(|m| DataError::invalid(&args.data, m))?;
-        let dataset = load_dataset(&cfg)?;
         Trainer::new(cfg, dataset, &run_dir)?
     };
     trainer.train(true)?;
@@ -277,7 +290,7 @@ fn train(args: TrainArgs) -> Result<()> {
         run_dir.join(CHECKPOINT).display()
     );
     if !args.no_render {
-        let result = write_eval(&trainer, "test")?;
+        let result = write_eval(&trainer, "test", false)?;
         println!("mean_psnr {:.4}", result.mean_psnr);
         let kind = default_path(&trainer.dataset);
         let out = run_dir.join("render");
@@ -299,7 +312,7 @@ fn split_views(t: &Trainer, split: &str) -> Vec<usize> {
     }
 }
 
-fn write_eval(t: &Trainer, split: &str) -> Result<nerf::eval::EvalResult> {
+fn write_eval(t: &Trainer, split: &str, save_images: bool) -> Result<nerf::eval::EvalResult> {
     let views = split_views(t, split);
     if views.is_empty() {
         return Err(DataError::invalid(
@@ -307,7 +320,11 @@ fn write_eval(t: &Trainer, split: &str) -> Result<nerf::eval::EvalResult> {
             format!("the dataset has no {split} views"),
         ));
     }
-    let mut result = nerf::eval::evaluate(t, &views, true);
+    let dir = t.run_dir.join("eval");
+    if save_images {
+        std::fs::create_dir_all(&dir).map_err(|e| DataError::io(&dir, e))?;
+    }
+    let mut result = nerf::eval::evaluate_saving(t, &views, true, save_images.then_some(dir.as_path()))?;
     result.split = split.into();
     let path = t.run_dir.join("eval.json");
     let json = serde_json::to_vec_pretty(&result).map_err(|e| DataError::invalid(&path, e.to_string()))?;
@@ -331,9 +348,9 @@ fn write_eval(t: &Trainer, split: &str) -> Result<nerf::eval::EvalResult> {
     Ok(result)
 }
 
-fn eval(run_dir: &Path, split: &str) -> Result<()> {
+fn eval(run_dir: &Path, split: &str, save_images: bool) -> Result<()> {
     let t = Trainer::resume(run_dir, |_| {})?;
-    let result = write_eval(&t, split)?;
+    let result = write_eval(&t, split, save_images)?;
     println!("mean_psnr {:.4}", result.mean_psnr);
     Ok(())
 }

@@ -19,6 +19,7 @@ pub struct VanillaPair {
 }
 
 /// The burn modules of a preset (what the optimiser updates and checkpoints store).
+#[allow(clippy::large_enum_variant)] // one value per run; boxing would not pay for itself
 #[derive(Module, Debug)]
 pub enum Fields {
     Fast(FastField),

@@ -104,11 +104,14 @@ pub fn render_fast(
         )
     });
     let stop_eps = if early_termination { s.stop_eps } else { 0.0 };
+    // Marching skips empty cells, so a ray's last sample need not lie at the far bound: it must
+    // not absorb the remaining light (`open_far` is for stratified sampling only).
+    let open_far = false;
     if early_termination && samples.num_samples() > 0 {
         let sigma = span("early_stop_density", || {
             density_host(field, &samples.positions(rays), bounds.aabb, device)
         });
-        let alive = composite::alive(&sigma, &samples.layout(rays, bounds.open_far), stop_eps);
+        let alive = composite::alive(&sigma, &samples.layout(rays, open_far), stop_eps);
         samples = samples.filter(&alive);
     }
     if samples.num_samples() == 0 {
@@ -119,7 +122,7 @@ pub fn render_fast(
     let out = span("field_forward", || {
         field.forward(tensor(positions, 3, device), &dirs)
     });
-    let layout = samples.layout(rays, bounds.open_far);
+    let layout = samples.layout(rays, open_far);
     let comp = span("composite", || {
         composite::composite(
             out.sigma,

@@ -82,9 +82,9 @@ pub fn load_dataset(cfg: &TrainConfig) -> Result<Dataset> {
 }
 
 impl Trainer {
-    /// A fresh run in `run_dir`.
-    pub fn new(mut cfg: TrainConfig, dataset: Dataset, run_dir: &Path) -> Result<Self> {
-        cfg.adapt_to(&dataset);
+    /// A fresh run in `run_dir`. The config should already be adapted to the dataset
+    /// ([`TrainConfig::adapt_to`]); user overrides come after that.
+    pub fn new(cfg: TrainConfig, dataset: Dataset, run_dir: &Path) -> Result<Self> {
         let device = nerf_core::device::parse(&cfg.device)
             .map_err(|e| DataError::invalid(run_dir, e))?
             .autodiff();
@@ -291,7 +291,7 @@ impl Trainer {
         if !show_progress {
             progress.finish();
         }
-        progress.println(format!("{}", self.dataset.describe()));
+        progress.println(self.dataset.describe());
         let mut bad = 0usize;
         let mut next_eval = if self.cfg.eval_every_secs > 0.0 {
             (self.elapsed / self.cfg.eval_every_secs).floor() * self.cfg.eval_every_secs
@@ -366,7 +366,7 @@ impl Trainer {
                 next_eval += self.cfg.eval_every_secs;
             }
             log.append(&record)?;
-            if self.step % self.cfg.checkpoint_every.max(1) == 0 {
+            if self.step.is_multiple_of(self.cfg.checkpoint_every.max(1)) {
                 self.save()?;
             }
         }

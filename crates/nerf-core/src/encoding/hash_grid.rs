@@ -36,6 +36,10 @@ pub struct HashGridConfig {
     pub log2_table: u32,
     pub base_resolution: u32,
     pub finest_resolution: u32,
+    /// For space-time grids: cap on the resolution of the last input dimension, so coarse and
+    /// fine levels alike stop subdividing time between video frames (e.g. frames − 1).
+    #[serde(default)]
+    pub time_resolution: Option<u32>,
 }
 
 impl Default for HashGridConfig {
@@ -47,6 +51,7 @@ impl Default for HashGridConfig {
             log2_table: 19,
             base_resolution: 16,
             finest_resolution: 2048,
+            time_resolution: None,
         }
     }
 }
@@ -70,6 +75,8 @@ impl HashGridConfig {
 pub struct Level {
     /// N_l: positions are scaled by this.
     pub resolution: u32,
+    /// Per input dimension: N_l, except a capped time resolution for space-time grids.
+    pub resolutions: [u32; 4],
     /// First entry of this level in the flat table.
     pub offset: usize,
     /// Entries in this level (≤ T).
@@ -86,8 +93,13 @@ pub fn levels(cfg: &HashGridConfig) -> Vec<Level> {
     (0..cfg.levels)
         .map(|l| {
             let resolution = (cfg.base_resolution as f64 * b.powi(l as i32)).floor() as u32;
-            let dense_size = (resolution as usize + 1)
-                .checked_pow(cfg.dims as u32)
+            let mut resolutions = [resolution; 4];
+            if let (Some(cap), true) = (cfg.time_resolution, cfg.dims >= 2) {
+                resolutions[cfg.dims - 1] = resolution.min(cap.max(1));
+            }
+            let dense_size = resolutions[..cfg.dims]
+                .iter()
+                .try_fold(1usize, |acc, r| acc.checked_mul(*r as usize + 1))
                 .unwrap_or(usize::MAX);
             let (size, dense) = if dense_size <= t_max {
                 (dense_size.div_ceil(8) * 8, true)
@@ -96,6 +108,7 @@ pub fn levels(cfg: &HashGridConfig) -> Vec<Level> {
             };
             let level = Level {
                 resolution,
+                resolutions,
                 offset,
                 size,
                 dense,
@@ -110,10 +123,9 @@ pub fn levels(cfg: &HashGridConfig) -> Vec<Level> {
 #[inline(always)]
 pub fn corner_index(level: &Level, v: &[u32]) -> usize {
     if level.dense {
-        let stride = level.resolution as usize + 1;
         let mut idx = 0usize;
-        for &c in v.iter().rev() {
-            idx = idx * stride + c as usize;
+        for (d, &c) in v.iter().enumerate().rev() {
+            idx = idx * (level.resolutions[d] as usize + 1) + c as usize;
         }
         idx
     } else {
@@ -135,12 +147,12 @@ fn corners<const D: usize, const C: usize, const DENSE: bool>(
     idx: &mut [u32; C],
     w: &mut [f32; C],
 ) -> [f32; D] {
-    let res = level.resolution;
     let mut lo_hi = [[0u32; 2]; D];
     let mut wt = [[0f32; 2]; D];
     let mut frac = [0f32; D];
     let mut stride = 1u32;
     for i in 0..D {
+        let res = level.resolutions[i];
         let p = x[i].clamp(0.0, 1.0) * res as f32;
         // p ≥ 0, so truncation is floor (f32::floor is a libm call on baseline x86_64). The far
         // face x = 1 belongs to the last cell so that corner + 1 stays on the grid. NaN → 0.
@@ -462,7 +474,6 @@ impl HashGrid {
                         corners::<D, C, false>(level, x, &mut idx, &mut wts)
                     };
                     let up = &go[l * f_n..(l + 1) * f_n];
-                    let res = level.resolution as f32;
                     let inside: [bool; D] = std::array::from_fn(|i| (0.0..=1.0).contains(&x[i]));
                     for corner in 0..C {
                         let idx = idx[corner] as usize;
@@ -474,6 +485,7 @@ impl HashGrid {
                             if !inside[a] {
                                 continue; // clamped coordinate: no gradient
                             }
+                            let res = level.resolutions[a] as f32;
                             let mut w = res * if (corner >> a) & 1 == 1 { 1.0 } else { -1.0 };
                             for i in 0..D {
                                 if i != a {

@@ -1,0 +1,142 @@
+//! NSFF configuration: the static pipeline's settings plus the dynamic field, sampling and the
+//! loss weights (defaults from NSFF's released configs, method.md §4.6).
+
+use nerf::config::{Preset, TrainConfig};
+use nerf_core::encoding::HashGridConfig;
+use nerf_data::{Dataset, LoadOptions, SceneKind};
+use serde::{Deserialize, Serialize};
+
+/// Loss weights (NSFF HEAD defaults).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LossWeights {
+    /// Photometric loss on the dynamic-only and the two warped renders.
+    pub dynamic_photo: f64,
+    /// mean |p| of the disocclusion probabilities (the paper's β_w ‖1 − w‖₁).
+    pub prob_reg: f64,
+    /// Scene-flow cycle consistency.
+    pub cycle: f64,
+    /// Minimal scene flow (paper form: mean |f|).
+    pub min_flow: f64,
+    /// Spatial and temporal scene-flow smoothness.
+    pub smooth: f64,
+    /// Projected scene flow against 2-D optical flow; decays.
+    pub optical_flow: f64,
+    /// Scale- and shift-invariant single-view depth; decays. Used only with disparity priors.
+    pub depth: f64,
+    /// One-sided entropy of the blend weight.
+    pub entropy: f64,
+}
+
+impl Default for LossWeights {
+    fn default() -> Self {
+        LossWeights {
+            dynamic_photo: 1.0,
+            prob_reg: 0.1,
+            cycle: 1.0,
+            min_flow: 0.1,
+            smooth: 0.1,
+            optical_flow: 0.02,
+            depth: 0.04,
+            entropy: 1e-3,
+        }
+    }
+}
+
+/// Whether to model independent motion.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum DynamicMode {
+    /// On when the optical flow shows motion the camera does not explain.
+    Auto,
+    On,
+    Off,
+}
+
+/// How renders at times between training frames are made.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum TimeInterp {
+    /// NSFF: render the two neighbouring frames' samples, move them along the scene flow and
+    /// splat them into the target camera.
+    Splat,
+    /// Query the space-time field at the in-between time directly.
+    Direct,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NsffConfig {
+    /// Shared with the static pipeline: data, preset, budgets, learning rate, static field.
+    pub base: TrainConfig,
+    /// Rays per step, all from one frame (as NSFF samples).
+    pub rays: usize,
+    /// Stratified samples per ray.
+    pub samples: usize,
+    /// The dynamic field's space-time hash grid (fast preset).
+    pub dynamic_grid: HashGridConfig,
+    /// Scene flow is tanh(raw) × flow_scale (scene units per frame; NDC for forward-facing).
+    pub flow_scale: f32,
+    pub weights: LossWeights,
+    /// The optical-flow and depth weights divide by 10 every `decay_steps` steps.
+    pub decay_steps: usize,
+    pub dynamic: DynamicMode,
+    /// Independent-motion threshold (pixels of epipolar error), for `DynamicMode::Auto`.
+    pub motion_threshold_px: f32,
+    /// At render time, samples whose blend weight is below this skip the dynamic field.
+    pub blend_skip: f32,
+    pub time_interp: TimeInterp,
+}
+
+impl NsffConfig {
+    pub fn new(preset: Preset, data: std::path::PathBuf, load: LoadOptions) -> Self {
+        let mut base = TrainConfig::new(preset, data, load);
+        base.random_background = false;
+        base.checkpoint_every = 200;
+        base.steps = 50_000;
+        NsffConfig {
+            base,
+            rays: 512,
+            samples: 64,
+            dynamic_grid: HashGridConfig {
+                dims: 4,
+                levels: 12,
+                features: 2,
+                log2_table: 17,
+                base_resolution: 16,
+                finest_resolution: 256,
+                time_resolution: None,
+            },
+            flow_scale: 0.25,
+            weights: LossWeights::default(),
+            decay_steps: 25_000,
+            dynamic: DynamicMode::Auto,
+            motion_threshold_px: 1.0,
+            blend_skip: 1e-2,
+            time_interp: TimeInterp::Splat,
+        }
+    }
+
+    /// Scene-dependent settings once the video is known.
+    pub fn adapt_to(&mut self, dataset: &Dataset, frames: usize) {
+        self.base.adapt_to(dataset);
+        self.base.random_background = false;
+        // Time cells end on frames, so each frame has its own features and in-between times
+        // interpolate between the two neighbours.
+        self.dynamic_grid.time_resolution = Some((frames.max(2) - 1) as u32);
+        // NSFF's D: min(max(25, frames), 250); weights decay by 10 every 1000·D steps.
+        self.decay_steps = 1000 * frames.clamp(25, 250);
+        if dataset.kind == SceneKind::ForwardFacing {
+            self.samples = 128;
+            self.flow_scale = 1.0;
+        } else {
+            let extent = (0..3)
+                .map(|a| dataset.aabb[1][a] - dataset.aabb[0][a])
+                .fold(0.0f32, f32::max);
+            self.flow_scale = 0.1 * extent;
+        }
+    }
+
+    /// Weight multiplier of the decaying terms at `step`.
+    pub fn decay(&self, step: usize) -> f64 {
+        0.1f64.powi((step / self.decay_steps.max(1)) as i32)
+    }
+}

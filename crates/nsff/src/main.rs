@@ -1,0 +1,374 @@
+//! `nsff`: Neural Scene Flow Fields from one moving camera's video with known poses.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use nerf::config::Preset;
+use nerf::render::FrameWriter;
+use nerf_data::error::{DataError, Result};
+use nerf_data::math;
+use nerf_data::{Camera, Image, LoadOptions, Pose};
+use nsff::config::{DynamicMode, NsffConfig, TimeInterp};
+use nsff::eval::{evaluate, render_at};
+use nsff::trainer::{CHECKPOINT, NsffTrainer, load_video};
+
+#[derive(Parser)]
+#[command(
+    name = "nsff",
+    version,
+    about = "Neural Scene Flow Fields: dynamic scenes from one moving camera"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Train on a video: D-NeRF-style transforms_*.json with per-frame time, or NSFF-style images/ + poses_bounds.npy.
+    Train(TrainArgs),
+    /// Score a run on its held-out (camera, time) views; last line "mean_psnr X".
+    Eval {
+        run_dir: PathBuf,
+        /// Also write ground truth | render pairs to RUN_DIR/eval/.
+        #[arg(long)]
+        save_images: bool,
+    },
+    /// Render a run: the cameras of a D-NeRF transforms file, or a path (bullet time, time-lapse, space-time).
+    Render(RenderArgs),
+}
+
+#[derive(clap::Args)]
+struct TrainArgs {
+    /// Video folder.
+    data: PathBuf,
+    #[arg(long)]
+    out: Option<PathBuf>,
+    #[arg(long, value_enum, default_value = "fast")]
+    preset: Preset,
+    #[arg(long)]
+    steps: Option<usize>,
+    /// Seconds of training (evaluation pauses excluded).
+    #[arg(long)]
+    time_budget: Option<f64>,
+    #[arg(long, default_value_t = 1)]
+    downscale: u32,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Continue from RUN_DIR/checkpoint.bin.
+    #[arg(long)]
+    resume: bool,
+    /// Model independent motion: auto (from the optical flow), on or off.
+    #[arg(long, value_enum, default_value = "auto")]
+    dynamic: DynamicMode,
+    /// Renders between frames: splat (NSFF) or direct (query the field at that time).
+    #[arg(long, value_enum, default_value = "splat")]
+    time_interp: TimeInterp,
+    /// Evaluate a few held-out views every SECS seconds of training (0 = never).
+    #[arg(long, default_value_t = 0.0)]
+    eval_every: f64,
+    /// Skip the evaluation and renders after training.
+    #[arg(long)]
+    no_render: bool,
+    #[arg(long, default_value = "flex")]
+    device: String,
+    /// Override any setting, e.g. --set weights.cycle=0.5 --set rays=1024.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+}
+
+/// Camera paths for dynamic scenes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum PathKind {
+    /// Fixed time (--frame), the camera orbits: novel views at a training time.
+    Bullet,
+    /// Fixed camera (--frame's), time runs over the whole video, interpolated between frames.
+    Timelapse,
+    /// The camera moves along the training trajectory while time runs (space-time interpolation).
+    Spacetime,
+}
+
+#[derive(clap::Args)]
+struct RenderArgs {
+    run_dir: PathBuf,
+    /// Render exactly these (camera, time) pairs from a D-NeRF-format transforms file, one PNG per frame in file order.
+    #[arg(long)]
+    cameras: Option<PathBuf>,
+    #[arg(long, value_enum, default_value = "spacetime")]
+    path: PathKind,
+    /// Reference frame for bullet and time-lapse paths.
+    #[arg(long, default_value_t = 0)]
+    frame: usize,
+    #[arg(long, default_value_t = 48)]
+    frames: usize,
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+fn main() -> ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Train(args) => train(args),
+        Command::Eval { run_dir, save_images } => {
+            let t = NsffTrainer::resume(&run_dir, |_| {}, false)?;
+            let r = write_eval(&t, save_images)?;
+            println!("mean_psnr {:.4}", r.mean_psnr);
+            Ok(())
+        }
+        Command::Render(args) => render(args),
+    }
+}
+
+fn train(args: TrainArgs) -> Result<()> {
+    let run_dir = args.out.clone().unwrap_or_else(|| {
+        let name = args
+            .data
+            .file_name()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "video".into());
+        PathBuf::from("runs").join(format!("nsff-{name}"))
+    });
+    let mut t = if args.resume {
+        if !run_dir.join(CHECKPOINT).exists() {
+            return Err(DataError::invalid(
+                &run_dir,
+                "--resume: no checkpoint.bin in the run folder",
+            ));
+        }
+        let t = NsffTrainer::resume(
+            &run_dir,
+            |cfg| {
+                if let Some(s) = args.steps {
+                    cfg.base.steps = s;
+                }
+                if args.time_budget.is_some() {
+                    cfg.base.time_budget = args.time_budget;
+                }
+            },
+            false,
+        )?;
+        eprintln!(
+            "resuming {} at step {} ({:.0} s trained)",
+            run_dir.display(),
+            t.step,
+            t.elapsed
+        );
+        t
+    } else {
+        let load = LoadOptions {
+            downscale: args.downscale.max(1),
+            ..LoadOptions::default()
+        };
+        let mut cfg = NsffConfig::new(args.preset, args.data.clone(), load);
+        cfg.base.seed = args.seed;
+        if let Some(s) = args.steps {
+            cfg.base.steps = s;
+        }
+        cfg.base.time_budget = args.time_budget;
+        if args.steps.is_none() && args.time_budget.is_some() {
+            cfg.base.steps = usize::MAX / 4;
+        }
+        cfg.base.eval_every_secs = args.eval_every;
+        cfg.base.device = args.device.clone();
+        cfg.dynamic = args.dynamic;
+        cfg.time_interp = args.time_interp;
+        let video = load_video(&cfg, &run_dir, false)?;
+        cfg.adapt_to(&video.dataset, video.frames.len());
+        let cfg = apply_overrides(&cfg, &args.overrides).map_err(|m| DataError::invalid(&args.data, m))?;
+        NsffTrainer::new(cfg, video, &run_dir)?
+    };
+    t.train(true)?;
+    eprintln!(
+        "trained {} steps in {:.1} s; checkpoint {}",
+        t.step,
+        t.elapsed,
+        run_dir.join(CHECKPOINT).display()
+    );
+    if !args.no_render {
+        let r = write_eval(&t, false)?;
+        println!("mean_psnr {:.4}", r.mean_psnr);
+        render_path(&t, PathKind::Spacetime, 0, 48, &run_dir.join("render"))?;
+        eprintln!(
+            "rendered {} into {}",
+            run_dir.join("render/path.gif").display(),
+            run_dir.display()
+        );
+    }
+    Ok(())
+}
+
+/// `key.path=value` overrides on the NSFF config (values parsed as JSON, else strings).
+fn apply_overrides(cfg: &NsffConfig, overrides: &[String]) -> std::result::Result<NsffConfig, String> {
+    let mut value = serde_json::to_value(cfg).map_err(|e| e.to_string())?;
+    for item in overrides {
+        let (key, raw) = item
+            .split_once('=')
+            .ok_or_else(|| format!("--set {item}: expected key=value"))?;
+        let mut node = &mut value;
+        for part in key.split('.') {
+            node = node
+                .get_mut(part)
+                .ok_or_else(|| format!("--set {item}: no setting '{key}'"))?;
+        }
+        *node = serde_json::from_str(raw).unwrap_or_else(|_| serde_json::Value::String(raw.to_string()));
+    }
+    serde_json::from_value(value).map_err(|e| format!("--set: {e}"))
+}
+
+fn write_eval(t: &NsffTrainer, save_images: bool) -> Result<nerf::eval::EvalResult> {
+    let views = t.video.dataset.test.clone();
+    if views.is_empty() {
+        return Err(DataError::invalid(
+            &t.cfg.base.data,
+            "the video has no held-out views",
+        ));
+    }
+    let dir = t.run_dir.join("eval");
+    if save_images {
+        std::fs::create_dir_all(&dir).map_err(|e| DataError::io(&dir, e))?;
+    }
+    let result = evaluate(t, &views, true, save_images.then_some(dir.as_path()))?;
+    let path = t.run_dir.join("eval.json");
+    let json = serde_json::to_vec_pretty(&result).map_err(|e| DataError::invalid(&path, e.to_string()))?;
+    nerf_data::image::write_atomic(&path, &json)?;
+    for v in &result.views {
+        let time = t.video.dataset.views[v.view].time.unwrap_or(f32::NAN);
+        println!(
+            "{:>4} {:<20} t {:.3}  psnr {:7.3}  ssim {:.4}",
+            v.view,
+            v.name,
+            time,
+            v.psnr,
+            v.ssim.unwrap_or(f64::NAN)
+        );
+    }
+    println!(
+        "{} views, rendered in {:.1} s; mean_ssim {:.4}",
+        result.views.len(),
+        result.render_seconds,
+        result.mean_ssim.unwrap_or(f64::NAN)
+    );
+    Ok(result)
+}
+
+/// Renders (camera, time) pairs: colour, depth, opacity, dynamic share and scene-flow maps, GIF.
+fn render_pairs(t: &NsffTrainer, pairs: &[(Camera, f32)], out: &Path, gif: &str) -> Result<()> {
+    let mut writer = FrameWriter::new(out, None)?;
+    for d in ["dynamic", "flow"] {
+        std::fs::create_dir_all(out.join(d)).map_err(|e| DataError::io(out.join(d), e))?;
+    }
+    let bar = indicatif::ProgressBar::new(pairs.len() as u64);
+    for (k, (cam, time)) in pairs.iter().enumerate() {
+        let r = render_at(t, cam, *time);
+        let (w, h) = (cam.intrinsics.width, cam.intrinsics.height);
+        let name = format!("{k:04}.png");
+        if r.dynamic_share.len() == (w * h) as usize {
+            Image::from_data(w, h, 1, r.dynamic_share.clone()).save_png(&out.join("dynamic").join(&name))?;
+            let max = r.flow_magnitude.iter().cloned().fold(1e-6f32, f32::max);
+            Image::from_data(w, h, 1, r.flow_magnitude.iter().map(|m| m / max).collect())
+                .save_png(&out.join("flow").join(&name))?;
+        }
+        writer.push(k, w, h, r.rgb, &r.depth, &r.opacity)?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    writer.finish_gif(gif)
+}
+
+fn render_path(t: &NsffTrainer, kind: PathKind, frame: usize, n: usize, out: &Path) -> Result<()> {
+    let v = &t.video;
+    let frame = frame.min(v.frames.len() - 1);
+    let cam_of = |k: usize| v.dataset.views[v.frames[k]].camera;
+    let last = v.frames.len() - 1;
+    let pairs: Vec<(Camera, f32)> = match kind {
+        PathKind::Bullet => {
+            let poses = if v.dataset.ndc.is_some() {
+                nerf_data::llff::spiral_path(&v.dataset, n)
+            } else {
+                nerf::render::orbit(&v.dataset, n)
+            };
+            poses
+                .into_iter()
+                .map(|p| (Camera::new(cam_of(frame).intrinsics, p), v.times[frame]))
+                .collect()
+        }
+        PathKind::Timelapse => (0..n)
+            .map(|i| (cam_of(frame), i as f32 / (n - 1).max(1) as f32))
+            .collect(),
+        PathKind::Spacetime => (0..n)
+            .map(|i| {
+                let tau = last as f32 * i as f32 / (n - 1).max(1) as f32;
+                let a = (tau.floor() as usize).min(last.saturating_sub(1));
+                let r = (tau - a as f32) as f64;
+                let (pa, pb) = (cam_of(a).pose, cam_of((a + 1).min(last)).pose);
+                let q = math::slerp(
+                    math::mat_to_quat(&pa.rotation),
+                    math::mat_to_quat(&pb.rotation),
+                    r,
+                );
+                let pose = Pose {
+                    rotation: math::quat_to_mat(q),
+                    translation: math::add(
+                        math::scale(pa.translation, 1.0 - r),
+                        math::scale(pb.translation, r),
+                    ),
+                };
+                let time = v.times[a] + (v.times[(a + 1).min(last)] - v.times[a]) * r as f32;
+                (Camera::new(cam_of(a).intrinsics, pose), time)
+            })
+            .collect(),
+    };
+    render_pairs(t, &pairs, out, "path.gif")
+}
+
+fn render(args: RenderArgs) -> Result<()> {
+    let t = NsffTrainer::resume(&args.run_dir, |_| {}, false)?;
+    let out = args.out.unwrap_or_else(|| args.run_dir.join("render"));
+    match args.cameras {
+        Some(json) => {
+            let first = t.video.dataset.views[t.video.frames[0]].camera.intrinsics;
+            let cams = nerf_data::blender::read_cameras(&json, (first.width, first.height))?;
+            let pairs: Vec<(Camera, f32)> = cams
+                .iter()
+                .map(|c| {
+                    c.time.map(|time| (c.camera, time as f32)).ok_or_else(|| {
+                        DataError::invalid(&json, format!("frame {} has no time", c.file_path))
+                    })
+                })
+                .collect::<Result<_>>()?;
+            render_pairs(&t, &pairs, &out, "cameras.gif")?;
+            let names: Vec<&str> = cams.iter().map(|c| c.file_path.as_str()).collect();
+            let path = out.join("frames.json");
+            nerf_data::image::write_atomic(
+                &path,
+                &serde_json::to_vec_pretty(&names).map_err(|e| DataError::invalid(&path, e.to_string()))?,
+            )?;
+            println!(
+                "rendered {} (camera, time) pairs from {} into {}",
+                pairs.len(),
+                json.display(),
+                out.display()
+            );
+        }
+        None => {
+            render_path(&t, args.path, args.frame, args.frames, &out)?;
+            println!(
+                "rendered {} frames ({:?} path) into {}",
+                args.frames,
+                args.path,
+                out.display()
+            );
+        }
+    }
+    Ok(())
+}

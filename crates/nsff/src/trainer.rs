@@ -1,0 +1,580 @@
+//! NSFF training: one frame per step, the combined, dynamic and warped renders, and the
+//! scene-flow losses. Bookkeeping (checkpoints, metrics log, progress, plot) is the static
+//! pipeline's.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use burn::module::Module;
+use burn::optim::decay::WeightDecayConfig;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::tensor::{Bytes, Device, Tensor};
+use nerf::checkpoint::{Sections, bytes_f32, f32_bytes};
+use nerf::logging::{MetricsLog, MetricsRecord, Progress};
+use nerf::model::scene_bounds;
+use nerf::renderer::{SceneBounds, tensor};
+use nerf_core::composite::composite;
+use nerf_core::metrics::psnr_from_mse;
+use nerf_core::optim::AdamParams;
+use nerf_data::error::{DataError, Result};
+use rand::{Rng, SeedableRng, rngs::StdRng};
+use serde::{Deserialize, Serialize};
+
+use crate::config::{DynamicMode, NsffConfig};
+use crate::geometry;
+use crate::losses::{entropy, mse, wmae, wmse};
+use crate::model::{Field, NsffFields, query_dynamic, query_static};
+use crate::render::sample_rays;
+use crate::video::{Video, prepare};
+
+pub const CHECKPOINT: &str = "checkpoint.bin";
+pub const METRICS: &str = "metrics.jsonl";
+const MAX_BAD_STEPS: usize = 5;
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct NsffState {
+    pub config: NsffConfig,
+    pub step: usize,
+    pub elapsed: f64,
+    /// Whether the model has a dynamic field (decided once, from the video's motion).
+    pub dynamic: bool,
+    pub moving_fraction: f32,
+}
+
+pub struct NsffTrainer {
+    pub cfg: NsffConfig,
+    pub video: Video,
+    pub fields: NsffFields,
+    optim: ModuleOptimizer,
+    pub step: usize,
+    pub elapsed: f64,
+    pub run_dir: PathBuf,
+    pub device: Device,
+    pub bounds: SceneBounds,
+}
+
+fn optimizer(cfg: &NsffConfig) -> ModuleOptimizer {
+    let b = &cfg.base;
+    let mut adam = AdamConfig::new()
+        .with_beta_1(b.adam_beta1 as f32)
+        .with_beta_2(b.adam_beta2 as f32)
+        .with_epsilon(b.adam_eps as f32);
+    if b.weight_decay > 0.0 {
+        adam = adam.with_weight_decay(Some(WeightDecayConfig::new(b.weight_decay as f32)));
+    }
+    adam.init()
+}
+
+/// Loads the video dataset a config names and prepares flows and the motion decision.
+pub fn load_video(cfg: &NsffConfig, run_dir: &Path, quiet: bool) -> Result<Video> {
+    let dataset = nerf_data::load::load_video(&cfg.base.data, &cfg.base.load)?;
+    for note in &dataset.notes {
+        if !quiet {
+            eprintln!("note: {note}");
+        }
+    }
+    prepare(
+        dataset,
+        &run_dir.join("flow_cache"),
+        cfg.motion_threshold_px,
+        quiet,
+    )
+}
+
+/// Per-term loss values of one step (for the log).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StepStats {
+    pub loss: f64,
+    pub psnr: f64,
+    pub rays: usize,
+    pub samples: usize,
+}
+
+impl NsffTrainer {
+    /// A fresh run. `cfg` should be adapted to the video already.
+    pub fn new(cfg: NsffConfig, video: Video, run_dir: &Path) -> Result<Self> {
+        let device = nerf_core::device::parse(&cfg.base.device)
+            .map_err(|e| DataError::invalid(run_dir, e))?
+            .autodiff();
+        std::fs::create_dir_all(run_dir).map_err(|e| DataError::io(run_dir, e))?;
+        let with_dynamic = match cfg.dynamic {
+            DynamicMode::On => true,
+            DynamicMode::Off => false,
+            DynamicMode::Auto => video.has_motion,
+        };
+        let fields = NsffFields::new(&cfg, with_dynamic, &device);
+        let optim = optimizer(&cfg);
+        let bounds = scene_bounds(&video.dataset);
+        Ok(NsffTrainer {
+            cfg,
+            video,
+            fields,
+            optim,
+            step: 0,
+            elapsed: 0.0,
+            run_dir: run_dir.to_path_buf(),
+            device,
+            bounds,
+        })
+    }
+
+    pub fn has_dynamic(&self) -> bool {
+        self.fields.dynamic.is_some()
+    }
+
+    /// Resumes from `run_dir/checkpoint.bin`; `update` may change budgets.
+    pub fn resume(run_dir: &Path, update: impl FnOnce(&mut NsffConfig), quiet: bool) -> Result<Self> {
+        let path = run_dir.join(CHECKPOINT);
+        let s = Sections::read(&path)?;
+        let state: NsffState = serde_json::from_slice(s.require("state", &path)?)
+            .map_err(|e| DataError::invalid(&path, format!("bad state: {e}")))?;
+        let mut cfg = state.config.clone();
+        update(&mut cfg);
+        let video = load_video(&cfg, run_dir, quiet)?;
+        cfg.dynamic = if state.dynamic {
+            DynamicMode::On
+        } else {
+            DynamicMode::Off
+        };
+        let mut t = NsffTrainer::new(cfg, video, run_dir)?;
+        t.restore(&s, &path)?;
+        Ok(t)
+    }
+
+    fn restore(&mut self, s: &Sections, path: &Path) -> Result<()> {
+        let state: NsffState = serde_json::from_slice(s.require("state", path)?)
+            .map_err(|e| DataError::invalid(path, format!("bad state: {e}")))?;
+        let record =
+            burn::store::ModuleRecord::from_bytes(Bytes::from_bytes_vec(s.require("fields", path)?.to_vec()))
+                .map_err(|e| DataError::invalid(path, format!("cannot read model: {e:?}")))?;
+        let fields = NsffFields::new(&self.cfg, state.dynamic, &self.device);
+        let mut fields = fields
+            .try_load_record(record)
+            .map_err(|e| DataError::invalid(path, format!("model does not match its config: {e:?}")))?;
+        for (k, field) in [Some(&mut fields.static_field), fields.dynamic.as_mut()]
+            .into_iter()
+            .flatten()
+            .enumerate()
+        {
+            if let Field::Fast(f) = field {
+                let table = bytes_f32(s.require(&format!("grid{k}"), path)?);
+                if table.len() != f.grid.num_params() {
+                    return Err(DataError::invalid(
+                        path,
+                        format!("hash table {k} has the wrong size"),
+                    ));
+                }
+                let grid = nerf_core::encoding::HashGrid::with_table(f.grid.config.clone(), table);
+                let adam = s.require(&format!("grid{k}_adam"), path)?;
+                let n = grid.num_params();
+                if adam.len() != 8 + 8 * n {
+                    return Err(DataError::invalid(
+                        path,
+                        format!("hash-grid {k} optimiser state has the wrong size"),
+                    ));
+                }
+                let step = u64::from_le_bytes(adam[..8].try_into().unwrap_or_default());
+                grid.set_adam_state(
+                    step,
+                    bytes_f32(&adam[8..8 + 4 * n]),
+                    bytes_f32(&adam[8 + 4 * n..]),
+                );
+                f.grid = grid;
+            }
+        }
+        self.fields = fields;
+        self.optim = optimizer(&self.cfg)
+            .from_bytes(Bytes::from_bytes_vec(s.require("optim", path)?.to_vec()))
+            .map_err(|e| DataError::invalid(path, format!("cannot load optimiser state: {e:?}")))?;
+        self.step = state.step;
+        self.elapsed = state.elapsed;
+        Ok(())
+    }
+
+    pub fn save(&self) -> Result<()> {
+        let path = self.run_dir.join(CHECKPOINT);
+        let state = NsffState {
+            config: self.cfg.clone(),
+            step: self.step,
+            elapsed: self.elapsed,
+            dynamic: self.has_dynamic(),
+            moving_fraction: self.video.moving_fraction,
+        };
+        let mut s = Sections::default();
+        s.push(
+            "state",
+            serde_json::to_vec_pretty(&state).map_err(|e| DataError::invalid(&path, e.to_string()))?,
+        );
+        let bytes = self
+            .fields
+            .clone()
+            .into_record()
+            .into_bytes()
+            .map_err(|e| DataError::invalid(&path, format!("cannot save model: {e:?}")))?;
+        s.push("fields", bytes.to_vec());
+        for (k, grid) in self.fields.grids().iter().enumerate() {
+            s.push(&format!("grid{k}"), f32_bytes(&grid.table()));
+            let (step, m, v) = grid.adam_state();
+            let mut adam = step.to_le_bytes().to_vec();
+            adam.extend(f32_bytes(&m));
+            adam.extend(f32_bytes(&v));
+            s.push(&format!("grid{k}_adam"), adam);
+        }
+        let optim = self
+            .optim
+            .into_bytes()
+            .map_err(|e| DataError::invalid(&path, format!("cannot save optimiser: {e:?}")))?;
+        s.push("optim", optim.to_vec());
+        s.write(&path)
+    }
+
+    /// One step on a random frame. `None` when the loss was not finite (step skipped).
+    pub fn train_step(&mut self) -> Option<StepStats> {
+        let seed = self
+            .cfg
+            .base
+            .seed
+            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .wrapping_add(self.step as u64);
+        let mut rng = StdRng::seed_from_u64(seed);
+        let (loss, stats) = self.step_loss(&mut rng)?;
+        let value = loss.clone().inner().into_scalar::<f32>() as f64;
+        if !value.is_finite() {
+            for g in self.fields.grids() {
+                g.zero_grad();
+            }
+            return None;
+        }
+        let grads = loss.backward();
+        let grads = GradientsParams::from_grads(grads, &self.fields);
+        let lr = self
+            .cfg
+            .base
+            .lr_at(self.cfg.base.progress(self.step, self.elapsed));
+        self.fields = self.optim.step(lr, self.fields.clone(), grads);
+        let p = AdamParams {
+            beta1: self.cfg.base.adam_beta1,
+            beta2: self.cfg.base.adam_beta2,
+            epsilon: self.cfg.base.adam_eps,
+        };
+        for g in self.fields.grids() {
+            g.adam_step(&p, lr);
+        }
+        self.step += 1;
+        Some(StepStats { loss: value, ..stats })
+    }
+
+    /// The loss of one step (NSFF HEAD's terms, method.md §4.6).
+    fn step_loss(&self, rng: &mut StdRng) -> Option<(Tensor<1>, StepStats)> {
+        let dev = &self.device;
+        let v = &self.video;
+        let ds = &v.dataset;
+        let n_frames = v.frames.len();
+        let k = rng.random_range(0..n_frames);
+        let view = &ds.views[v.frames[k]];
+        let cam = view.camera;
+        let (w, h) = (view.image.width, view.image.height);
+        let pixels: Vec<u32> = (0..self.cfg.rays).map(|_| rng.random_range(0..w * h)).collect();
+        let rays = ds.rays_for(&cam, pixels.iter().copied());
+        let target: Vec<f32> = pixels
+            .iter()
+            .flat_map(|&p| view.image.pixel(p as usize)[..3].to_vec())
+            .collect();
+        let target = tensor(target, 3, dev);
+        let samples = sample_rays(
+            &rays,
+            &self.bounds,
+            self.cfg.samples,
+            !self.bounds.open_far,
+            Some(rng),
+        );
+        let s_n = samples.num_samples();
+        if s_n == 0 {
+            return None;
+        }
+        let layout = samples.layout(&rays, self.bounds.open_far);
+        let x = tensor(samples.positions(&rays), 3, dev);
+        let dirs = samples.per_sample3(&rays.viewdirs());
+        let t_col = tensor(samples.t.clone(), 1, dev);
+        let bg = ds
+            .background
+            .map(|c| tensor(c.repeat(rays.len()).to_vec(), 3, dev));
+        let with_bg = |rgb: Tensor<2>, acc: Tensor<2>| match &bg {
+            Some(b) => rgb + (acc.neg() + 1.0) * b.clone(),
+            None => rgb,
+        };
+        let r_n = rays.len();
+        let wts = &self.cfg.weights;
+        let decay = self.cfg.decay(self.step);
+        let st = query_static(&self.fields.static_field, x.clone(), &dirs, self.bounds.aabb);
+        let Some(dynamic) = &self.fields.dynamic else {
+            // No independent motion: the static pipeline's photometric loss only.
+            let out = composite(st.sigma, Tensor::cat(vec![st.rgb, t_col], 1), None, &layout, 0.0);
+            let rgb = with_bg(out.clone().slice([0..r_n, 0..3]), out.slice([0..r_n, 4..5]));
+            let loss = mse(rgb, target);
+            let m = loss.clone().inner().into_scalar::<f32>() as f64;
+            return Some((
+                loss,
+                StepStats {
+                    loss: m,
+                    psnr: psnr_from_mse(m),
+                    rays: r_n,
+                    samples: s_n,
+                },
+            ));
+        };
+        let flow_scale = self.cfg.flow_scale;
+        let dy = query_dynamic(
+            dynamic,
+            x.clone(),
+            v.times[k],
+            &dirs,
+            self.bounds.aabb,
+            flow_scale,
+        );
+
+        // Combined render: the static and dynamic components blended per sample.
+        let sigma2 = Tensor::cat(vec![st.sigma.clone(), dy.sigma.clone()], 1);
+        let feats2 = Tensor::cat(
+            vec![st.rgb.clone(), t_col.clone(), dy.rgb.clone(), t_col.clone()],
+            1,
+        );
+        let blend2 = Tensor::cat(vec![st.blend.clone().neg() + 1.0, st.blend.clone()], 1);
+        let cb = composite(sigma2, feats2, Some(blend2), &layout, 0.0);
+        let rgb_cb = with_bg(cb.clone().slice([0..r_n, 0..3]), cb.slice([0..r_n, 4..5]));
+        let mse_cb = mse(rgb_cb, target.clone());
+        let mut loss = mse_cb.clone();
+
+        // Dynamic-only render, also integrating the flowed points (for the optical-flow term).
+        let x_next = x.clone() + dy.flow_next.clone();
+        let x_prev = x.clone() + dy.flow_prev.clone();
+        let feats_d = Tensor::cat(
+            vec![dy.rgb.clone(), t_col.clone(), x_next.clone(), x_prev.clone()],
+            1,
+        );
+        let d = composite(dy.sigma.clone(), feats_d, None, &layout, 0.0);
+        let acc_d = d.clone().slice([0..r_n, 10..11]);
+        let rgb_d = with_bg(d.clone().slice([0..r_n, 0..3]), acc_d);
+        loss = loss + mse(rgb_d, target.clone()) * wts.dynamic_photo;
+
+        // Neighbouring frames: warped renders, disocclusion weights, cycle and flow terms.
+        let neighbours = [
+            (k + 1 < n_frames).then(|| (k + 1, true)),
+            (k > 0).then(|| (k - 1, false)),
+        ];
+        for (j, forward) in neighbours.into_iter().flatten() {
+            let (flow, prob, x_j) = if forward {
+                (dy.flow_next.clone(), dy.prob_next.clone(), x_next.clone())
+            } else {
+                (dy.flow_prev.clone(), dy.prob_prev.clone(), x_prev.clone())
+            };
+            let dj = query_dynamic(dynamic, x_j, v.times[j], &dirs, self.bounds.aabb, flow_scale);
+            let warped = composite(dj.sigma.clone(), dj.rgb.clone(), None, &layout, 0.0);
+            let rgb_w = with_bg(warped.clone().slice([0..r_n, 0..3]), warped.slice([0..r_n, 3..4]));
+            // Ŵ = Σ sg(w_j)·(1 − p): gradients reach p only.
+            let vis = composite(
+                dj.sigma.clone().detach(),
+                prob.clone().neg() + 1.0,
+                None,
+                &layout,
+                0.0,
+            )
+            .slice([0..r_n, 0..1]);
+            loss = loss + wmse(rgb_w, target.clone(), vis) * wts.dynamic_photo;
+            // The flow back from the warped point should undo the flow that got there.
+            let back = if forward { dj.flow_prev } else { dj.flow_next };
+            loss = loss + wmae(flow.clone(), back.neg(), prob.clone().neg() + 1.0) * wts.cycle;
+            loss = loss + prob.abs().mean() * wts.prob_reg;
+            // Projected scene flow against the 2-D optical flow of this pixel.
+            let prior = if forward { &v.flow_fwd[k] } else { &v.flow_bwd[k] };
+            if let (Some(of), true) = (prior, wts.optical_flow > 0.0) {
+                let mut tgt = Vec::with_capacity(2 * r_n);
+                let mut mask = Vec::with_capacity(r_n);
+                for &p in &pixels {
+                    let (i, jj) = ((p % w) as f32 + 0.5, (p / w) as f32 + 0.5);
+                    let q = p as usize;
+                    tgt.extend([i + of.flow[2 * q], jj + of.flow[2 * q + 1]]);
+                    mask.push(of.mask[q]);
+                }
+                let expected = d
+                    .clone()
+                    .slice(if forward { [0..r_n, 4..7] } else { [0..r_n, 7..10] });
+                let world = match &ds.ndc {
+                    Some(ndc) => geometry::ndc_to_world(expected, ndc),
+                    None => expected,
+                };
+                let uv = geometry::project(world, &ds.views[v.frames[j]].camera, dev);
+                loss =
+                    loss + wmae(uv, tensor(tgt, 2, dev), tensor(mask, 1, dev)) * (wts.optical_flow * decay);
+            }
+        }
+        // Scene-flow priors: small, temporally smooth (f_next + f_prev ≈ 0), spatially smooth.
+        // Smoothness is measured in Euclidean space (NDC flows are converted first).
+        let (fn_e, fp_e) = match &ds.ndc {
+            Some(ndc) => {
+                let xe = geometry::ndc_to_world(x.clone(), ndc);
+                (
+                    geometry::ndc_to_world(x_next.clone(), ndc) - xe.clone(),
+                    geometry::ndc_to_world(x_prev.clone(), ndc) - xe,
+                )
+            }
+            None => (dy.flow_next.clone(), dy.flow_prev.clone()),
+        };
+        loss = loss
+            + (dy.flow_next.clone().abs().mean() + dy.flow_prev.clone().abs().mean()) * (0.5 * wts.min_flow);
+        loss = loss + (fn_e.clone() + fp_e.clone()).powi_scalar(2).sum_dim(1).mean() * (0.5 * wts.smooth);
+        let (a, b) = adjacent_pairs(&samples, 0.95);
+        if !a.is_empty() {
+            let n_pairs = a.len();
+            let ia =
+                Tensor::<1, burn::tensor::Int>::from_data(burn::tensor::TensorData::new(a, [n_pairs]), dev);
+            let ib =
+                Tensor::<1, burn::tensor::Int>::from_data(burn::tensor::TensorData::new(b, [n_pairs]), dev);
+            let spatial = (fn_e.clone().select(0, ia.clone()) - fn_e.select(0, ib.clone()))
+                .abs()
+                .mean()
+                + (fp_e.clone().select(0, ia) - fp_e.select(0, ib)).abs().mean();
+            loss = loss + spatial * wts.smooth;
+        }
+        loss = loss + entropy(st.blend) * wts.entropy;
+        let m = mse_cb.inner().into_scalar::<f32>() as f64;
+        Some((
+            loss,
+            StepStats {
+                loss: 0.0,
+                psnr: psnr_from_mse(m),
+                rays: r_n,
+                samples: s_n,
+            },
+        ))
+    }
+
+    /// Trains until a budget is reached (as `nerf train`).
+    pub fn train(&mut self, show_progress: bool) -> Result<()> {
+        let log = MetricsLog::open(&self.run_dir.join(METRICS), (self.step > 0).then_some(self.step))?;
+        let b = &self.cfg.base;
+        let progress = Progress::new(b.steps, b.time_budget, self.step, self.elapsed);
+        if !show_progress {
+            progress.finish();
+        }
+        progress.println(format!(
+            "{}; {} frames; independent motion in {:.2}% of flow pixels: dynamic field {}",
+            self.video.dataset.describe(),
+            self.video.frames.len(),
+            100.0 * self.video.moving_fraction,
+            if self.has_dynamic() {
+                "on"
+            } else {
+                "off (static scene)"
+            }
+        ));
+        let mut bad = 0usize;
+        let mut next_eval = if b.eval_every_secs > 0.0 {
+            b.eval_every_secs * ((self.elapsed / b.eval_every_secs).floor() + 1.0)
+        } else {
+            f64::INFINITY
+        };
+        let mut last_print = Instant::now();
+        while self.step < self.cfg.base.steps && self.cfg.base.time_budget.is_none_or(|tb| self.elapsed < tb)
+        {
+            let t0 = Instant::now();
+            let stats = self.train_step();
+            self.elapsed += t0.elapsed().as_secs_f64();
+            let Some(stats) = stats else {
+                bad += 1;
+                progress.println(format!(
+                    "step {}: non-finite loss, step skipped ({bad} in a row)",
+                    self.step
+                ));
+                if bad >= MAX_BAD_STEPS {
+                    let msg = format!(
+                        "{MAX_BAD_STEPS} non-finite losses in a row at step {}; rolling back to the last checkpoint",
+                        self.step
+                    );
+                    progress.println(&msg);
+                    log.append(&MetricsRecord {
+                        step: self.step,
+                        time: self.elapsed,
+                        note: Some(msg),
+                        ..Default::default()
+                    })?;
+                    self.rollback()?;
+                    bad = 0;
+                }
+                continue;
+            };
+            bad = 0;
+            let rays_per_sec = stats.rays as f64 / t0.elapsed().as_secs_f64().max(1e-9);
+            progress.update(
+                self.step,
+                self.elapsed,
+                format!(
+                    "step {} loss {:.4} psnr {:.2} {:.0} rays/s",
+                    self.step, stats.loss, stats.psnr, rays_per_sec
+                ),
+            );
+            if progress.is_hidden() && last_print.elapsed().as_secs_f64() > 10.0 {
+                eprintln!(
+                    "step {} ({:.0} s) loss {:.4} train psnr {:.2} {:.0} rays/s",
+                    self.step, self.elapsed, stats.loss, stats.psnr, rays_per_sec
+                );
+                last_print = Instant::now();
+            }
+            let mut record = MetricsRecord {
+                step: self.step,
+                time: self.elapsed,
+                loss: Some(stats.loss),
+                train_psnr: Some(stats.psnr),
+                rays_per_sec: Some(rays_per_sec),
+                samples_per_ray: Some(stats.samples as f64 / stats.rays.max(1) as f64),
+                ..Default::default()
+            };
+            if self.elapsed >= next_eval {
+                let views = crate::eval::quick_views(&self.video.dataset);
+                let e = crate::eval::evaluate(self, &views, false, None)?;
+                progress.println(format!(
+                    "step {} ({:.0} s): test psnr {:.2}",
+                    self.step, self.elapsed, e.mean_psnr
+                ));
+                record.test_psnr = Some(e.mean_psnr);
+                next_eval += self.cfg.base.eval_every_secs;
+            }
+            log.append(&record)?;
+            if self.step.is_multiple_of(self.cfg.base.checkpoint_every.max(1)) {
+                self.save()?;
+            }
+        }
+        progress.finish();
+        self.save()?;
+        nerf::plot::training_curve(&self.run_dir.join(METRICS), &self.run_dir.join("psnr.png"))
+    }
+
+    fn rollback(&mut self) -> Result<()> {
+        let path = self.run_dir.join(CHECKPOINT);
+        if path.exists() {
+            let s = Sections::read(&path)?;
+            self.restore(&s, &path)
+        } else {
+            let dynamic = self.has_dynamic();
+            self.fields = NsffFields::new(&self.cfg, dynamic, &self.device);
+            self.optim = optimizer(&self.cfg);
+            self.step = 0;
+            Ok(())
+        }
+    }
+}
+
+/// Index pairs (s, s + 1) of neighbouring samples on the same ray, over the first `frac` of each
+/// ray's samples (NSFF skips the far end, where NDC warps stretch).
+fn adjacent_pairs(samples: &nerf_core::sampler::RaySamples, frac: f32) -> (Vec<i32>, Vec<i32>) {
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for r in 0..samples.num_rays() {
+        let range = samples.range(r);
+        let keep = ((range.len() as f32 * frac) as usize).max(1);
+        for s in range.start..(range.start + keep).min(range.end).saturating_sub(1) {
+            a.push(s as i32);
+            b.push(s as i32 + 1);
+        }
+    }
+    (a, b)
+}

@@ -1,0 +1,141 @@
+//! The training video: frames ordered by time, their neighbours, and the optical-flow priors
+//! (read from the input, or computed with the built-in estimator and cached in the run folder).
+
+use std::path::Path;
+
+use nerf_data::error::{DataError, Result};
+use nerf_data::{Dataset, FlowField};
+
+/// A video ready for NSFF.
+pub struct Video {
+    pub dataset: Dataset,
+    /// Training view indices in time order.
+    pub frames: Vec<usize>,
+    /// Normalised time of each frame, increasing.
+    pub times: Vec<f32>,
+    /// Optical flow frame k → k+1 (None for the last frame), at the frames' resolution.
+    pub flow_fwd: Vec<Option<FlowField>>,
+    /// Optical flow frame k → k−1 (None for the first frame).
+    pub flow_bwd: Vec<Option<FlowField>>,
+    /// Monocular disparity per frame, when the input had it.
+    pub disparity: Vec<Option<Vec<f32>>>,
+    /// Share of flow pixels the camera motion does not explain, and the decision.
+    pub moving_fraction: f32,
+    pub has_motion: bool,
+}
+
+/// Orders the training frames by time and checks them: every frame has a time, times strictly
+/// increase in file order (no duplicates), all frames share one size, and there are at least 3.
+pub fn check_frames(dataset: &Dataset) -> Result<(Vec<usize>, Vec<f32>)> {
+    let source = train_json(dataset);
+    let frames = dataset.train.clone();
+    if frames.len() < 3 {
+        return Err(DataError::invalid(
+            &source,
+            format!("NSFF needs at least 3 training frames, found {}", frames.len()),
+        ));
+    }
+    let mut times = Vec::with_capacity(frames.len());
+    for (k, &v) in frames.iter().enumerate() {
+        let view = &dataset.views[v];
+        let t = view.time.ok_or_else(|| {
+            DataError::invalid(
+                &source,
+                format!(
+                    "frame {k} ({}) has no time; NSFF needs a time per frame",
+                    view.name
+                ),
+            )
+        })?;
+        if let Some(&prev) = times.last() {
+            if t == prev {
+                return Err(DataError::invalid(
+                    &source,
+                    format!("frames {} and {k} ({}) have the same time {t}", k - 1, view.name),
+                ));
+            }
+            if t < prev {
+                return Err(DataError::invalid(
+                    &source,
+                    format!(
+                        "time decreases at frame {k} ({}): {t} after {prev}; frames must be in time order",
+                        view.name
+                    ),
+                ));
+            }
+        }
+        times.push(t);
+        let (w, h) = (view.image.width, view.image.height);
+        let first = &dataset.views[frames[0]].image;
+        if (w, h) != (first.width, first.height) {
+            return Err(DataError::invalid(
+                &source,
+                format!(
+                    "frame {k} ({}) is {w}x{h} but frame 0 is {}x{}",
+                    view.name, first.width, first.height
+                ),
+            ));
+        }
+    }
+    Ok((frames, times))
+}
+
+/// The file frames come from, for messages (`transforms_train.json` or the folder).
+fn train_json(dataset: &Dataset) -> std::path::PathBuf {
+    let json = dataset.source.join("transforms_train.json");
+    if json.exists() {
+        json
+    } else {
+        dataset.source.clone()
+    }
+}
+
+/// Prepares the video: frame order, flows (given, cached or computed), motion decision.
+pub fn prepare(dataset: Dataset, cache_dir: &Path, motion_threshold_px: f32, quiet: bool) -> Result<Video> {
+    let (frames, times) = check_frames(&dataset)?;
+    let n = frames.len();
+    let given = dataset.priors.clone().unwrap_or_default();
+    let pick = |v: &Vec<Option<FlowField>>| -> Vec<Option<FlowField>> {
+        frames.iter().map(|&f| v.get(f).cloned().flatten()).collect()
+    };
+    let (mut flow_fwd, mut flow_bwd) = (pick(&given.flow_fwd), pick(&given.flow_bwd));
+    let disparity: Vec<Option<Vec<f32>>> = frames
+        .iter()
+        .map(|&f| given.disparity.get(f).cloned().flatten())
+        .collect();
+    let complete = (0..n).all(|k| (k + 1 == n || flow_fwd[k].is_some()) && (k == 0 || flow_bwd[k].is_some()));
+    if !complete {
+        let first = &dataset.views[frames[0]].image;
+        let (w, h) = (first.width, first.height);
+        match nerf_data::flow::read_flow_cache(cache_dir, n, w, h)? {
+            Some((f, b)) => {
+                (flow_fwd, flow_bwd) = (f, b);
+            }
+            None => {
+                if !quiet {
+                    eprintln!(
+                        "computing optical flow for {n} frames ({w}x{h}); cached in {}",
+                        cache_dir.display()
+                    );
+                }
+                let images: Vec<&nerf_data::Image> =
+                    frames.iter().map(|&f| &dataset.views[f].image).collect();
+                let (f, b) = nerf_data::flow::video_flows(&images, &nerf_data::flow::FlowParams::default());
+                nerf_data::flow::write_flow_cache(cache_dir, &f, &b)?;
+                (flow_fwd, flow_bwd) = (f, b);
+            }
+        }
+    }
+    let cameras: Vec<nerf_data::Camera> = frames.iter().map(|&f| dataset.views[f].camera).collect();
+    let report = nerf_data::flow::independent_motion(&cameras, &flow_fwd, motion_threshold_px);
+    Ok(Video {
+        dataset,
+        frames,
+        times,
+        flow_fwd,
+        flow_bwd,
+        disparity,
+        moving_fraction: report.moving_fraction,
+        has_motion: report.has_independent_motion,
+    })
+}
