@@ -57,6 +57,8 @@ pub fn scene_bounds(dataset: &Dataset) -> SceneBounds {
 impl StaticModel {
     /// A freshly initialised model for `cfg` on `device`.
     pub fn new(cfg: &TrainConfig, bounds: SceneBounds, device: &Device) -> Self {
+        // MLP initialisation draws from the device's RNG; seeding it makes runs reproducible.
+        device.seed(cfg.seed);
         let fields = match cfg.preset {
             Preset::Fast => Fields::Fast(fast_config(cfg, 0).init(device, cfg.seed)),
             Preset::Vanilla => {

@@ -55,6 +55,7 @@ pub struct DynamicOut {
 impl NsffFields {
     pub fn new(cfg: &NsffConfig, with_dynamic: bool, device: &Device) -> Self {
         let seed = cfg.base.seed;
+        device.seed(seed);
         let (static_field, dynamic) = match cfg.base.preset {
             Preset::Fast => {
                 let st = fast_config(&cfg.base, 1).init(device, seed);
