@@ -213,8 +213,12 @@ impl TrainConfig {
 }
 
 /// Applies `key.path=value` overrides (values parsed as JSON, else taken as strings), e.g.
-/// `fast.color_layers=1` or `fast.grid.log2_table=17`. Unknown keys are errors.
-pub fn apply_overrides(cfg: &TrainConfig, overrides: &[String]) -> Result<TrainConfig, String> {
+/// `fast.color_layers=1` or `fast.grid.log2_table=17`. Unknown keys are errors. Works on any
+/// serialisable config (the NSFF config nests this one under `base`).
+pub fn apply_overrides<C: Serialize + serde::de::DeserializeOwned>(
+    cfg: &C,
+    overrides: &[String],
+) -> Result<C, String> {
     let mut value = serde_json::to_value(cfg).map_err(|e| e.to_string())?;
     for item in overrides {
         let (key, raw) = item

@@ -53,22 +53,40 @@ pub fn evaluate_saving(
     with_ssim: bool,
     save: Option<&std::path::Path>,
 ) -> nerf_data::error::Result<EvalResult> {
+    let mut result = score_views(&t.dataset, views, with_ssim, save, |v| {
+        let r = t
+            .model
+            .render_rays(&t.dataset.view_rays(v), &t.cfg, t.dataset.background, &t.device);
+        (r.rgb, r.samples_per_ray)
+    })?;
+    result.step = t.step;
+    result.train_seconds = t.elapsed;
+    Ok(result)
+}
+
+/// Scores held-out views of `dataset` rendered by `render` (view index → RGB `[H·W·3]` and
+/// samples per ray), optionally saving ground truth | render pairs as `DIR/<index>.png`.
+/// `step` and `train_seconds` are left for the caller.
+pub fn score_views(
+    dataset: &nerf_data::Dataset,
+    views: &[usize],
+    with_ssim: bool,
+    save: Option<&std::path::Path>,
+    mut render: impl FnMut(usize) -> (Vec<f32>, f64),
+) -> nerf_data::error::Result<EvalResult> {
     let start = Instant::now();
     let mut scores = Vec::new();
     let mut spr = 0.0;
     for &v in views {
-        let view = &t.dataset.views[v];
-        let rays = t.dataset.view_rays(v);
-        let r = t
-            .model
-            .render_rays(&rays, &t.cfg, t.dataset.background, &t.device);
-        spr += r.samples_per_ray;
+        let view = &dataset.views[v];
+        let (rgb, samples_per_ray) = render(v);
+        spr += samples_per_ray;
         let (w, h) = (view.image.width as usize, view.image.height as usize);
         if let Some(dir) = save {
             let mut pair = Vec::with_capacity(2 * w * h * 3);
             for y in 0..h {
                 pair.extend_from_slice(&view.image.data[y * w * 3..(y + 1) * w * 3]);
-                pair.extend_from_slice(&r.rgb[y * w * 3..(y + 1) * w * 3]);
+                pair.extend_from_slice(&rgb[y * w * 3..(y + 1) * w * 3]);
             }
             nerf_data::Image::from_data(2 * w as u32, h as u32, 3, pair)
                 .save_png(&dir.join(format!("{v:04}.png")))?;
@@ -76,15 +94,15 @@ pub fn evaluate_saving(
         scores.push(ViewScore {
             view: v,
             name: view.name.clone(),
-            psnr: psnr(&r.rgb, &view.image.data),
-            ssim: with_ssim.then(|| ssim(&r.rgb, &view.image.data, w, h, 3)),
+            psnr: psnr(&rgb, &view.image.data),
+            ssim: with_ssim.then(|| ssim(&rgb, &view.image.data, w, h, 3)),
         });
     }
     let n = scores.len().max(1) as f64;
     Ok(EvalResult {
         split: "test".into(),
-        step: t.step,
-        train_seconds: t.elapsed,
+        step: 0,
+        train_seconds: 0.0,
         mean_psnr: scores.iter().map(|s| s.psnr).sum::<f64>() / n,
         mean_ssim: with_ssim.then(|| scores.iter().filter_map(|s| s.ssim).sum::<f64>() / n),
         views: scores,

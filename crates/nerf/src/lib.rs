@@ -9,4 +9,5 @@ pub mod model;
 pub mod plot;
 pub mod render;
 pub mod renderer;
+pub mod train_loop;
 pub mod trainer;

@@ -3,7 +3,6 @@
 //! metrics log and the PSNR-vs-time plot.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use burn::module::Module;
 use burn::optim::decay::WeightDecayConfig;
@@ -19,14 +18,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{Sections, bytes_f32, f32_bytes};
 use crate::config::{Preset, TrainConfig};
-use crate::logging::{MetricsLog, MetricsRecord, Progress};
 use crate::model::{Fields, StaticModel, scene_bounds};
 use crate::renderer::tensor;
 
-pub const CHECKPOINT: &str = "checkpoint.bin";
-pub const METRICS: &str = "metrics.jsonl";
-/// Consecutive non-finite losses after which training rolls back to the last checkpoint.
-const MAX_BAD_STEPS: usize = 5;
+pub use crate::train_loop::{CHECKPOINT, METRICS, StepStats};
 
 /// What a checkpoint records besides the tensors.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -37,15 +32,6 @@ pub struct TrainState {
     pub elapsed: f64,
     /// Current ray count of the adaptive batch (fast preset).
     pub n_rays: usize,
-}
-
-/// Per-step result.
-#[derive(Clone, Copy, Debug)]
-pub struct StepStats {
-    pub loss: f64,
-    pub psnr: f64,
-    pub rays: usize,
-    pub samples: usize,
 }
 
 pub struct Trainer {
@@ -286,101 +272,12 @@ impl Trainer {
     /// Trains until the step or time budget is reached. Checkpoints every `checkpoint_every`
     /// steps and at the end; evaluates held-out views every `eval_every_secs` of training.
     pub fn train(&mut self, show_progress: bool) -> Result<()> {
-        let log = MetricsLog::open(&self.run_dir.join(METRICS), (self.step > 0).then_some(self.step))?;
-        let progress = Progress::new(self.cfg.steps, self.cfg.time_budget, self.step, self.elapsed);
-        if !show_progress {
-            progress.finish();
-        }
-        progress.println(self.dataset.describe());
-        let mut bad = 0usize;
-        let mut next_eval = if self.cfg.eval_every_secs > 0.0 {
-            (self.elapsed / self.cfg.eval_every_secs).floor() * self.cfg.eval_every_secs
-                + self.cfg.eval_every_secs
-        } else {
-            f64::INFINITY
-        };
-        let mut last_print = Instant::now();
-        while self.step < self.cfg.steps && self.cfg.time_budget.is_none_or(|b| self.elapsed < b) {
-            let t0 = Instant::now();
-            let stats = self.train_step();
-            self.elapsed += t0.elapsed().as_secs_f64();
-            let Some(stats) = stats else {
-                bad += 1;
-                progress.println(format!(
-                    "step {}: non-finite loss, step skipped ({bad} in a row)",
-                    self.step
-                ));
-                if bad >= MAX_BAD_STEPS {
-                    let msg = format!(
-                        "{MAX_BAD_STEPS} non-finite losses in a row at step {}; rolling back to the last checkpoint",
-                        self.step
-                    );
-                    progress.println(&msg);
-                    log.append(&MetricsRecord {
-                        step: self.step,
-                        time: self.elapsed,
-                        note: Some(msg),
-                        ..Default::default()
-                    })?;
-                    self.rollback()?;
-                    bad = 0;
-                }
-                continue;
-            };
-            bad = 0;
-            let rays_per_sec = stats.rays as f64 / t0.elapsed().as_secs_f64().max(1e-9);
-            let spr = stats.samples as f64 / stats.rays.max(1) as f64;
-            let lr = self.cfg.lr_at(self.cfg.progress(self.step, self.elapsed));
-            progress.update(
-                self.step,
-                self.elapsed,
-                format!(
-                    "step {} loss {:.4} psnr {:.2} {:.0} rays/s {:.1} samples/ray",
-                    self.step, stats.loss, stats.psnr, rays_per_sec, spr
-                ),
-            );
-            if progress.is_hidden() && last_print.elapsed().as_secs_f64() > 10.0 {
-                eprintln!(
-                    "step {} ({:.0} s) loss {:.4} train psnr {:.2} {:.0} rays/s",
-                    self.step, self.elapsed, stats.loss, stats.psnr, rays_per_sec
-                );
-                last_print = Instant::now();
-            }
-            let mut record = MetricsRecord {
-                step: self.step,
-                time: self.elapsed,
-                loss: Some(stats.loss),
-                train_psnr: Some(stats.psnr),
-                lr: Some(lr),
-                rays_per_sec: Some(rays_per_sec),
-                samples_per_ray: Some(spr),
-                ..Default::default()
-            };
-            if self.elapsed >= next_eval {
-                let e = crate::eval::evaluate(self, &crate::eval::quick_views(&self.dataset), false);
-                progress.println(format!(
-                    "step {} ({:.0} s): test psnr {:.2}",
-                    self.step, self.elapsed, e.mean_psnr
-                ));
-                record.test_psnr = Some(e.mean_psnr);
-                next_eval += self.cfg.eval_every_secs;
-            }
-            log.append(&record)?;
-            if self.step.is_multiple_of(self.cfg.checkpoint_every.max(1)) {
-                self.save()?;
-            }
-        }
-        progress.finish();
-        if nerf_core::profile::enabled() {
-            eprint!("{}", nerf_core::profile::report());
-        }
-        self.save()?;
-        crate::plot::training_curve(&self.run_dir.join(METRICS), &self.run_dir.join("psnr.png"))?;
-        Ok(())
+        let header = self.dataset.describe();
+        crate::train_loop::train(self, &header, show_progress)
     }
 
     /// Restores the last checkpoint (or the initial state when there is none).
-    fn rollback(&mut self) -> Result<()> {
+    pub fn rollback(&mut self) -> Result<()> {
         let path = self.run_dir.join(CHECKPOINT);
         if path.exists() {
             let sections = Sections::read(&path)?;
@@ -481,4 +378,39 @@ pub fn load_model(
         }
     }
     Ok(model)
+}
+
+impl crate::train_loop::Trainable for Trainer {
+    fn config(&self) -> &TrainConfig {
+        &self.cfg
+    }
+    fn run_dir(&self) -> &Path {
+        &self.run_dir
+    }
+    fn step(&self) -> usize {
+        self.step
+    }
+    fn elapsed(&self) -> f64 {
+        self.elapsed
+    }
+    fn add_elapsed(&mut self, secs: f64) {
+        self.elapsed += secs;
+    }
+    fn train_step(&mut self) -> Option<StepStats> {
+        Trainer::train_step(self)
+    }
+    fn save(&self) -> Result<()> {
+        Trainer::save(self)
+    }
+    fn rollback(&mut self) -> Result<()> {
+        Trainer::rollback(self)
+    }
+    fn quick_eval(&mut self) -> Result<f64> {
+        Ok(crate::eval::evaluate(self, &crate::eval::quick_views(&self.dataset), false).mean_psnr)
+    }
+    fn status(&self) -> String {
+        self.model.occupancy.as_ref().map_or(String::new(), |o| {
+            format!(", {:.1}% occupied", 100.0 * o.occupied_fraction())
+        })
+    }
 }

@@ -67,12 +67,25 @@ pub enum TimeInterp {
 pub struct NsffConfig {
     /// Shared with the static pipeline: data, preset, budgets, learning rate, static field.
     pub base: TrainConfig,
-    /// Rays per step, all from one frame (as NSFF samples).
+    /// Rays per step, all from one frame (as NSFF samples); with an occupancy grid the most rays,
+    /// the count adapting to keep the static pipeline's `target_samples` per step.
     pub rays: usize,
+    /// The fewest rays per step with an occupancy grid.
+    #[serde(default = "default_min_rays")]
+    pub min_rays: usize,
     /// Stratified samples per ray.
     pub samples: usize,
     /// The dynamic field's space-time hash grid (fast preset).
     pub dynamic_grid: HashGridConfig,
+    /// Hidden width of the dynamic field's density and colour MLPs (fast preset). Half the
+    /// static field's: the moving part of a scene is small, and it keeps the dynamic field's
+    /// cost per sample at about the static field's.
+    #[serde(default = "default_dynamic_width")]
+    pub dynamic_width: usize,
+    /// Spherical-harmonics degree of the dynamic field's view directions (the static field
+    /// keeps the full degree 4; low-order view dependence is enough for the moving part).
+    #[serde(default = "default_dynamic_sh_degree")]
+    pub dynamic_sh_degree: usize,
     /// Scene flow is tanh(raw) × flow_scale (scene units per frame; NDC for forward-facing).
     pub flow_scale: f32,
     pub weights: LossWeights,
@@ -81,9 +94,28 @@ pub struct NsffConfig {
     pub dynamic: DynamicMode,
     /// Independent-motion threshold (pixels of epipolar error), for `DynamicMode::Auto`.
     pub motion_threshold_px: f32,
+    /// Initial logit of the blend weight b (the dynamic share): −3 gives b ≈ 0.05.
+    #[serde(default = "default_blend_init_logit")]
+    pub blend_init_logit: f32,
     /// At render time, samples whose blend weight is below this skip the dynamic field.
     pub blend_skip: f32,
     pub time_interp: TimeInterp,
+}
+
+fn default_min_rays() -> usize {
+    256
+}
+
+fn default_blend_init_logit() -> f32 {
+    -3.0
+}
+
+fn default_dynamic_width() -> usize {
+    32
+}
+
+fn default_dynamic_sh_degree() -> usize {
+    2
 }
 
 impl NsffConfig {
@@ -94,7 +126,8 @@ impl NsffConfig {
         base.steps = 50_000;
         NsffConfig {
             base,
-            rays: 512,
+            rays: 1024,
+            min_rays: default_min_rays(),
             samples: 64,
             dynamic_grid: HashGridConfig {
                 dims: 4,
@@ -105,11 +138,14 @@ impl NsffConfig {
                 finest_resolution: 256,
                 time_resolution: None,
             },
+            dynamic_width: default_dynamic_width(),
+            dynamic_sh_degree: default_dynamic_sh_degree(),
             flow_scale: 0.25,
             weights: LossWeights::default(),
             decay_steps: 25_000,
             dynamic: DynamicMode::Auto,
             motion_threshold_px: 1.0,
+            blend_init_logit: default_blend_init_logit(),
             blend_skip: 1e-2,
             time_interp: TimeInterp::Splat,
         }
@@ -132,6 +168,10 @@ impl NsffConfig {
                 .map(|a| dataset.aabb[1][a] - dataset.aabb[0][a])
                 .fold(0.0f32, f32::max);
             self.flow_scale = 0.1 * extent;
+            // Four field queries per sample make NSFF's samples dear, and the grid prunes only
+            // once training has emptied the air: march at a quarter of the static pipeline's
+            // resolution (128 steps across the box diagonal, about NSFF's sample count).
+            self.base.fast.march.step = extent * 3f32.sqrt() / 128.0;
         }
     }
 

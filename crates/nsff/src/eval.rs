@@ -1,11 +1,10 @@
 //! Held-out (camera, time) evaluation for NSFF.
 
 use std::path::Path;
-use std::time::Instant;
 
-use nerf::eval::{EvalResult, ViewScore};
-use nerf_core::metrics::{psnr, ssim};
-use nerf_data::Dataset;
+use burn::module::Module;
+
+use nerf::eval::{EvalResult, score_views};
 use nerf_data::error::Result;
 
 use crate::config::TimeInterp;
@@ -52,6 +51,7 @@ pub fn render_at(t: &NsffTrainer, camera: &nerf_data::Camera, time: f32) -> Host
                 time,
                 &t.cfg,
                 &t.bounds,
+                t.occupancy.as_ref(),
                 ds.background,
                 &t.device,
             );
@@ -67,7 +67,17 @@ pub fn render_at(t: &NsffTrainer, camera: &nerf_data::Camera, time: f32) -> Host
         out.dynamic_per_ray /= rays.len().max(1) as f64;
         out
     } else {
-        render_splat(&t.fields, ds, camera, tau, times, &t.cfg, &t.bounds, &t.device)
+        render_splat(
+            &t.fields,
+            ds,
+            camera,
+            tau,
+            times,
+            &t.cfg,
+            &t.bounds,
+            t.occupancy.as_ref(),
+            &t.device,
+        )
     }
 }
 
@@ -79,41 +89,90 @@ pub fn evaluate(
     with_ssim: bool,
     save: Option<&Path>,
 ) -> Result<EvalResult> {
-    let start = Instant::now();
-    let ds: &Dataset = &t.video.dataset;
-    let mut scores = Vec::new();
-    let mut spr = 0.0;
-    for &v in views {
+    let ds = &t.video.dataset;
+    let mut result = score_views(ds, views, with_ssim, save, |v| {
         let view = &ds.views[v];
-        let time = view.time.unwrap_or(0.0);
-        let r = render_at(t, &view.camera, time);
-        spr += r.samples_per_ray;
-        let (w, h) = (view.image.width as usize, view.image.height as usize);
-        if let Some(dir) = save {
-            let mut pair = Vec::with_capacity(2 * w * h * 3);
-            for y in 0..h {
-                pair.extend_from_slice(&view.image.data[y * w * 3..(y + 1) * w * 3]);
-                pair.extend_from_slice(&r.rgb[y * w * 3..(y + 1) * w * 3]);
-            }
-            nerf_data::Image::from_data(2 * w as u32, h as u32, 3, pair)
-                .save_png(&dir.join(format!("{v:04}.png")))?;
-        }
-        scores.push(ViewScore {
-            view: v,
-            name: view.name.clone(),
-            psnr: psnr(&r.rgb, &view.image.data),
-            ssim: with_ssim.then(|| ssim(&r.rgb, &view.image.data, w, h, 3)),
-        });
+        let r = render_at(t, &view.camera, view.time.unwrap_or(0.0));
+        (r.rgb, r.samples_per_ray)
+    })?;
+    result.step = t.step;
+    result.train_seconds = t.elapsed;
+    Ok(result)
+}
+
+/// 3-D scene-flow error of the dynamic field on the moving objects of a scene from our
+/// generator, against the generator's exact rigid motion.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SceneFlowError {
+    /// Mean end-point error of the forward flow (scene units per frame).
+    pub epe: f64,
+    /// Mean true displacement: the error of predicting no motion.
+    pub zero_motion_epe: f64,
+    pub points: usize,
+}
+
+/// At every `stride`-th pixel of every training frame but the last, whose centre ray hits a
+/// moving object at that frame's time, compares the field's forward scene flow at the true
+/// surface point with the object's displacement to the next frame's time. `None` without a
+/// dynamic field, for NDC scenes, or when no ray hits a moving object.
+pub fn scene_flow_error(
+    t: &NsffTrainer,
+    scene: &nerf_data::synth::Scene,
+    stride: usize,
+) -> Option<SceneFlowError> {
+    let dynamic = t.fields.dynamic.as_ref()?.valid();
+    let ds = &t.video.dataset;
+    if ds.ndc.is_some() {
+        return None;
     }
-    let n = scores.len().max(1) as f64;
-    Ok(EvalResult {
-        split: "test".into(),
-        step: t.step,
-        train_seconds: t.elapsed,
-        mean_psnr: scores.iter().map(|s| s.psnr).sum::<f64>() / n,
-        mean_ssim: with_ssim.then(|| scores.iter().filter_map(|s| s.ssim).sum::<f64>() / n),
-        views: scores,
-        samples_per_ray: spr / n,
-        render_seconds: start.elapsed().as_secs_f64(),
+    let plain = t.device.clone().inner();
+    let moving = scene.moving_objects();
+    let (mut sum, mut zero, mut n) = (0.0f64, 0.0f64, 0usize);
+    for k in 0..t.video.frames.len().saturating_sub(1) {
+        let (t0, t1) = (t.video.times[k], t.video.times[k + 1]);
+        let camera = &ds.views[t.video.frames[k]].camera;
+        let pixels = (0..camera.intrinsics.num_pixels() as u32).step_by(stride.max(1));
+        let rays = nerf_data::rays::pixel_rays(camera, pixels);
+        let (mut points, mut truth, mut dirs) = (Vec::new(), Vec::new(), Vec::new());
+        for r in 0..rays.len() {
+            let (o, d) = (rays.origin(r).map(f64::from), rays.direction(r).map(f64::from));
+            let Some(hit) = scene.intersect(o, d, t0 as f64) else {
+                continue;
+            };
+            if !moving.contains(&hit.object) {
+                continue;
+            }
+            points.extend(hit.point.map(|c| c as f32));
+            truth.push(scene.object_scene_flow(hit.object, hit.point, t0 as f64, t1 as f64));
+            let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            dirs.extend(d.map(|c| (c / norm) as f32));
+        }
+        if truth.is_empty() {
+            continue;
+        }
+        let out = crate::model::query_dynamic(
+            &dynamic,
+            nerf::renderer::tensor(points, 3, &plain),
+            t0,
+            &dirs,
+            t.bounds.aabb,
+            t.cfg.flow_scale,
+        );
+        let pred = out
+            .flow_next
+            .into_data()
+            .try_into_vec_as::<f32>()
+            .unwrap_or_default();
+        for (i, g) in truth.iter().enumerate() {
+            let e: f64 = (0..3).map(|a| (pred[3 * i + a] as f64 - g[a]).powi(2)).sum();
+            sum += e.sqrt();
+            zero += (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+            n += 1;
+        }
+    }
+    (n > 0).then(|| SceneFlowError {
+        epe: sum / n as f64,
+        zero_motion_epe: zero / n as f64,
+        points: n,
     })
 }

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use nerf::config::Preset;
+use nerf::config::{Preset, apply_overrides};
 use nerf::render::FrameWriter;
 use nerf_data::error::{DataError, Result};
 use nerf_data::math;
@@ -207,24 +207,6 @@ fn train(args: TrainArgs) -> Result<()> {
     Ok(())
 }
 
-/// `key.path=value` overrides on the NSFF config (values parsed as JSON, else strings).
-fn apply_overrides(cfg: &NsffConfig, overrides: &[String]) -> std::result::Result<NsffConfig, String> {
-    let mut value = serde_json::to_value(cfg).map_err(|e| e.to_string())?;
-    for item in overrides {
-        let (key, raw) = item
-            .split_once('=')
-            .ok_or_else(|| format!("--set {item}: expected key=value"))?;
-        let mut node = &mut value;
-        for part in key.split('.') {
-            node = node
-                .get_mut(part)
-                .ok_or_else(|| format!("--set {item}: no setting '{key}'"))?;
-        }
-        *node = serde_json::from_str(raw).unwrap_or_else(|_| serde_json::Value::String(raw.to_string()));
-    }
-    serde_json::from_value(value).map_err(|e| format!("--set: {e}"))
-}
-
 fn write_eval(t: &NsffTrainer, save_images: bool) -> Result<nerf::eval::EvalResult> {
     let views = t.video.dataset.test.clone();
     if views.is_empty() {
@@ -258,6 +240,21 @@ fn write_eval(t: &NsffTrainer, save_images: bool) -> Result<nerf::eval::EvalResu
         result.render_seconds,
         result.mean_ssim.unwrap_or(f64::NAN)
     );
+    // Scenes from our generator carry their exact motion: score the scene flow too.
+    let scene_file = t.cfg.base.data.join(nerf_data::synth::SCENE_FILE);
+    if scene_file.exists() {
+        let scene = nerf_data::synth::Scene::load(&scene_file)?;
+        if let Some(e) = nsff::eval::scene_flow_error(t, &scene, 4) {
+            println!(
+                "scene flow on moving objects: EPE {:.4} (no-motion baseline {:.4}) over {} surface points",
+                e.epe, e.zero_motion_epe, e.points
+            );
+            let path = t.run_dir.join("scene_flow.json");
+            let json =
+                serde_json::to_vec_pretty(&e).map_err(|err| DataError::invalid(&path, err.to_string()))?;
+            nerf_data::image::write_atomic(&path, &json)?;
+        }
+    }
     Ok(result)
 }
 

@@ -7,7 +7,7 @@ use burn::module::Module;
 use burn::tensor::activation::{relu, sigmoid};
 use burn::tensor::{Device, Tensor};
 use nerf::config::Preset;
-use nerf::field::{FastField, FastFieldConfig, VanillaField, VanillaFieldConfig, normalize};
+use nerf::field::{FastField, FastFieldConfig, VanillaField, VanillaFieldConfig, normalize, normalize_host};
 use nerf::model::fast_config;
 use nerf::renderer::tensor;
 
@@ -58,13 +58,24 @@ impl NsffFields {
         device.seed(seed);
         let (static_field, dynamic) = match cfg.base.preset {
             Preset::Fast => {
-                let st = fast_config(&cfg.base, 1).init(device, seed);
+                let mut st = fast_config(&cfg.base, 1).init(device, seed);
+                if let Some(head) = st.extra.as_mut() {
+                    // Start static (b ≈ 0.05): the dynamic field sees each time from one camera
+                    // only, so it should take over only where the static field cannot explain
+                    // the video; starting at b = 0.5 leaves dynamic fog in novel views.
+                    head.bias = Some(burn::module::Param::from_tensor(Tensor::full(
+                        [1],
+                        cfg.blend_init_logit,
+                        device,
+                    )));
+                }
                 let dy = with_dynamic.then(|| {
                     let f = &cfg.base.fast;
                     FastFieldConfig::new(cfg.dynamic_grid.clone())
-                        .with_hidden(f.hidden)
+                        .with_hidden(cfg.dynamic_width)
                         .with_geo_features(f.geo_features)
-                        .with_color_hidden(f.color_hidden)
+                        .with_color_hidden(cfg.dynamic_width)
+                        .with_sh_degree(cfg.dynamic_sh_degree)
                         .with_color_layers(f.color_layers)
                         .with_extra_outputs(DYNAMIC_EXTRA)
                         .init(device, seed.wrapping_add(1))
@@ -163,4 +174,35 @@ pub fn query_dynamic(
         prob_prev: prob.clone().slice([0..n, 0..1]),
         prob_next: prob.slice([0..n, 1..2]),
     }
+}
+
+/// Density for the occupancy grid at `[M, 3]` world positions (host), as the combined render
+/// sees it: (1 − b)·σ_static + b·σ_dynamic, with the dynamic field at each point's own time in
+/// `times` (one per point). `None` for the vanilla preset, which samples without a grid.
+pub fn occupancy_density(
+    fields: &NsffFields,
+    positions: &[f32],
+    times: &[f32],
+    aabb: [[f32; 3]; 2],
+    device: &Device,
+) -> Option<Vec<f32>> {
+    let Field::Fast(st) = &fields.static_field else {
+        return None;
+    };
+    let host = |t: Tensor<2>| t.into_data().try_into_vec_as::<f32>().unwrap_or_default();
+    let mut out = Vec::with_capacity(positions.len() / 3);
+    for (chunk, tc) in positions.chunks(3 * 65536).zip(times.chunks(65536)) {
+        let x = tensor(normalize_host(chunk, aabb), 3, device);
+        let (sigma, extra) = st.density_extra(x.clone());
+        let mut sigma = host(sigma);
+        if let (Some(Field::Fast(dy)), Some(extra)) = (&fields.dynamic, extra) {
+            let blend = host(sigmoid(extra));
+            let xt = Tensor::cat(vec![x, tensor(tc.to_vec(), 1, device)], 1);
+            for ((s, d), b) in sigma.iter_mut().zip(host(dy.density(xt))).zip(blend) {
+                *s = (1.0 - b) * *s + b * d;
+            }
+        }
+        out.extend(sigma);
+    }
+    Some(out)
 }

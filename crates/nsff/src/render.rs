@@ -5,8 +5,9 @@ use burn::module::Module;
 use burn::tensor::{Device, Tensor};
 use nerf::renderer::{SceneBounds, tensor};
 use nerf_core::composite::{self, RayLayout};
+use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::rays::{Rays, intersect_aabb};
-use nerf_core::sampler::{RaySamples, Spacing, stratified};
+use nerf_core::sampler::{self, MarchConfig, RaySamples, Spacing, stratified};
 use nerf_data::{Camera, Dataset};
 use rand::rngs::StdRng;
 
@@ -14,15 +15,20 @@ use crate::config::NsffConfig;
 use crate::geometry;
 use crate::model::{NsffFields, query_dynamic, query_static};
 
-/// Stratified samples per ray inside the scene box ∩ [near, far] (the whole [near, far] for NDC
-/// scenes), jittered when `rng` is given.
+/// Samples along rays. With an occupancy grid (object scenes, fast preset) the rays march through
+/// it and skip empty space; otherwise `n` stratified samples per ray in [near, far], clipped to
+/// the scene box when `clip_to_box`. Jittered when `rng` is given.
 pub fn sample_rays(
     rays: &Rays,
     bounds: &SceneBounds,
     n: usize,
     clip_to_box: bool,
+    march: Option<(&OccupancyGrid, &MarchConfig)>,
     rng: Option<&mut StdRng>,
 ) -> RaySamples {
+    if let Some((grid, cfg)) = march {
+        return sampler::march(rays, bounds.aabb, bounds.near, bounds.far, Some(grid), cfg, rng);
+    }
     let mut near = Vec::with_capacity(rays.len());
     let mut far = Vec::with_capacity(rays.len());
     for r in 0..rays.len() {
@@ -62,20 +68,23 @@ fn host(t: Tensor<2>) -> Vec<f32> {
 }
 
 /// Renders rays at normalised time `time` with the combined model, no gradients. Samples whose
-/// static blend weight is below `cfg.blend_skip` skip the dynamic field.
+/// static blend weight is below `cfg.blend_skip` skip the dynamic field. With an occupancy grid the
+/// rays march through it.
+#[allow(clippy::too_many_arguments)]
 pub fn render_direct(
     fields: &NsffFields,
     rays: &Rays,
     time: f32,
     cfg: &NsffConfig,
     bounds: &SceneBounds,
+    occupancy: Option<&OccupancyGrid>,
     background: Option<[f32; 3]>,
     device: &Device,
 ) -> HostRender {
     let plain = device.clone().inner();
     let fields = fields.valid();
-    let clip = !bounds.open_far;
-    let samples = sample_rays(rays, bounds, cfg.samples, clip, None);
+    let march = occupancy.map(|g| (g, &cfg.base.fast.march));
+    let samples = sample_rays(rays, bounds, cfg.samples, !bounds.open_far, march, None);
     let s_n = samples.num_samples();
     let mut out = HostRender::default();
     if s_n == 0 {
@@ -128,7 +137,8 @@ pub fn render_direct(
             }
         }
     }
-    let layout = samples.layout(rays, bounds.open_far);
+    // Marched rays end wherever the grid does: they must not absorb the remaining light.
+    let layout = samples.layout(rays, bounds.open_far && march.is_none());
     let comp = composite_combined(
         &sigma_st, &rgb_st, &blend, &sigma_dy, &rgb_dy, &flow_mag, &samples.t, &layout, &plain,
     );
@@ -200,6 +210,7 @@ pub fn render_splat(
     times: &[f32],
     cfg: &NsffConfig,
     bounds: &SceneBounds,
+    occupancy: Option<&OccupancyGrid>,
     device: &Device,
 ) -> HostRender {
     let plain = device.clone().inner();
@@ -208,7 +219,16 @@ pub fn render_splat(
     let i = (tau.floor().max(0.0) as usize).min(last.saturating_sub(1));
     let r = (tau - i as f32).clamp(0.0, 1.0);
     let Some(dynamic) = fields.dynamic.as_ref().map(|d| d.valid()) else {
-        return render_direct(fields, &rays, times[i], cfg, bounds, dataset.background, device);
+        return render_direct(
+            fields,
+            &rays,
+            times[i],
+            cfg,
+            bounds,
+            occupancy,
+            dataset.background,
+            device,
+        );
     };
     let st_field = fields.static_field.valid();
     let (w, h) = (
@@ -218,7 +238,8 @@ pub fn render_splat(
     let n_rays = rays.len();
     // Same depths for every ray: layers are slices of constant camera depth (or NDC t).
     let s = cfg.samples;
-    let samples = sample_rays(&rays, bounds, s, false, None);
+    // Not clipped to the box: every ray needs all `s` layers.
+    let samples = sample_rays(&rays, bounds, s, false, None, None);
     let pos = samples.positions(&rays);
     let dirs = samples.per_sample3(&rays.viewdirs());
     let layout = samples.layout(&rays, bounds.open_far);

@@ -3,18 +3,18 @@
 //! pipeline's.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use burn::module::Module;
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Bytes, Device, Tensor};
 use nerf::checkpoint::{Sections, bytes_f32, f32_bytes};
-use nerf::logging::{MetricsLog, MetricsRecord, Progress};
+use nerf::config::Preset;
 use nerf::model::scene_bounds;
 use nerf::renderer::{SceneBounds, tensor};
 use nerf_core::composite::composite;
 use nerf_core::metrics::psnr_from_mse;
+use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::optim::AdamParams;
 use nerf_data::error::{DataError, Result};
 use rand::{Rng, SeedableRng, rngs::StdRng};
@@ -23,13 +23,11 @@ use serde::{Deserialize, Serialize};
 use crate::config::{DynamicMode, NsffConfig};
 use crate::geometry;
 use crate::losses::{entropy, mse, wmae, wmse};
-use crate::model::{Field, NsffFields, query_dynamic, query_static};
+use crate::model::{Field, NsffFields, occupancy_density, query_dynamic, query_static};
 use crate::render::sample_rays;
 use crate::video::{Video, prepare};
 
-pub const CHECKPOINT: &str = "checkpoint.bin";
-pub const METRICS: &str = "metrics.jsonl";
-const MAX_BAD_STEPS: usize = 5;
+pub use nerf::train_loop::{CHECKPOINT, METRICS, StepStats};
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct NsffState {
@@ -39,6 +37,9 @@ pub struct NsffState {
     /// Whether the model has a dynamic field (decided once, from the video's motion).
     pub dynamic: bool,
     pub moving_fraction: f32,
+    /// Rays per step (adapted to keep the sample count near the static pipeline's target).
+    #[serde(default)]
+    pub n_rays: usize,
 }
 
 pub struct NsffTrainer {
@@ -51,6 +52,10 @@ pub struct NsffTrainer {
     pub run_dir: PathBuf,
     pub device: Device,
     pub bounds: SceneBounds,
+    /// Occupancy grid over space, occupied where the static field or the dynamic field at any
+    /// time has density (object scenes with the fast preset; NDC scenes sample stratified).
+    pub occupancy: Option<OccupancyGrid>,
+    n_rays: usize,
 }
 
 fn optimizer(cfg: &NsffConfig) -> ModuleOptimizer {
@@ -81,15 +86,6 @@ pub fn load_video(cfg: &NsffConfig, run_dir: &Path, quiet: bool) -> Result<Video
     )
 }
 
-/// Per-term loss values of one step (for the log).
-#[derive(Clone, Copy, Debug, Default)]
-pub struct StepStats {
-    pub loss: f64,
-    pub psnr: f64,
-    pub rays: usize,
-    pub samples: usize,
-}
-
 impl NsffTrainer {
     /// A fresh run. `cfg` should be adapted to the video already.
     pub fn new(cfg: NsffConfig, video: Video, run_dir: &Path) -> Result<Self> {
@@ -105,6 +101,22 @@ impl NsffTrainer {
         let fields = NsffFields::new(&cfg, with_dynamic, &device);
         let optim = optimizer(&cfg);
         let bounds = scene_bounds(&video.dataset);
+        let f = &cfg.base.fast;
+        let mut occupancy = (cfg.base.preset == Preset::Fast && f.use_occupancy && !bounds.open_far)
+            .then(|| OccupancyGrid::new(f.occupancy.clone(), bounds.aabb));
+        if let (Some(grid), false) = (occupancy.as_mut(), with_dynamic) {
+            // A static scene is consistent with every view, so its visual hull is valid, as in
+            // the static pipeline. (With independent motion a view's silhouette only bounds the
+            // scene at that view's time, so dynamic scenes are not carved.)
+            let carved = nerf_core::occupancy::carve_visual_hull(grid, &video.dataset, &video.frames);
+            if carved > 0.0 {
+                eprintln!(
+                    "occupancy grid: {:.1}% of the box carved away by the training silhouettes",
+                    100.0 * carved
+                );
+            }
+        }
+        let n_rays = cfg.rays;
         Ok(NsffTrainer {
             cfg,
             video,
@@ -115,6 +127,8 @@ impl NsffTrainer {
             run_dir: run_dir.to_path_buf(),
             device,
             bounds,
+            occupancy,
+            n_rays,
         })
     }
 
@@ -186,8 +200,18 @@ impl NsffTrainer {
         self.optim = optimizer(&self.cfg)
             .from_bytes(Bytes::from_bytes_vec(s.require("optim", path)?.to_vec()))
             .map_err(|e| DataError::invalid(path, format!("cannot load optimiser state: {e:?}")))?;
+        if let (Some(o), Some(values)) = (self.occupancy.as_mut(), s.get("occupancy")) {
+            let values = bytes_f32(values);
+            if values.len() != o.num_cells() {
+                return Err(DataError::invalid(path, "occupancy grid has the wrong size"));
+            }
+            o.set_values(values);
+        }
         self.step = state.step;
         self.elapsed = state.elapsed;
+        if state.n_rays > 0 {
+            self.n_rays = state.n_rays;
+        }
         Ok(())
     }
 
@@ -199,6 +223,7 @@ impl NsffTrainer {
             elapsed: self.elapsed,
             dynamic: self.has_dynamic(),
             moving_fraction: self.video.moving_fraction,
+            n_rays: self.n_rays,
         };
         let mut s = Sections::default();
         s.push(
@@ -220,6 +245,9 @@ impl NsffTrainer {
             adam.extend(f32_bytes(&v));
             s.push(&format!("grid{k}_adam"), adam);
         }
+        if let Some(o) = &self.occupancy {
+            s.push("occupancy", f32_bytes(o.values()));
+        }
         let optim = self
             .optim
             .into_bytes()
@@ -237,7 +265,15 @@ impl NsffTrainer {
             .wrapping_mul(0x9E37_79B9_7F4A_7C15)
             .wrapping_add(self.step as u64);
         let mut rng = StdRng::seed_from_u64(seed);
-        let (loss, stats) = self.step_loss(&mut rng)?;
+        let Some((loss, stats)) = self.step_loss(&mut rng) else {
+            // Every ray missed the occupied space: nothing to learn from, count the step.
+            self.step += 1;
+            return Some(StepStats {
+                loss: f64::NAN,
+                psnr: f64::NAN,
+                ..StepStats::default()
+            });
+        };
         let value = loss.clone().inner().into_scalar::<f32>() as f64;
         if !value.is_finite() {
             for g in self.fields.grids() {
@@ -261,10 +297,48 @@ impl NsffTrainer {
             g.adam_step(&p, lr);
         }
         self.step += 1;
+        if self.occupancy.as_ref().is_some_and(|o| o.due(self.step)) {
+            self.update_occupancy(&mut rng);
+        }
+        if self.occupancy.is_some() {
+            // Keep about `target_samples` samples per step, as the static trainer does.
+            let f = &self.cfg.base.fast;
+            let want = self.n_rays as f64 * f.target_samples as f64 / stats.samples.max(1) as f64;
+            self.n_rays = (want as usize).clamp(self.cfg.min_rays, self.cfg.rays.max(self.cfg.min_rays));
+        }
         Some(StepStats { loss: value, ..stats })
     }
 
-    /// The loss of one step (NSFF HEAD's terms, method.md §4.6).
+    /// Refreshes the occupancy grid: each refreshed point takes the static density or the
+    /// dynamic density at a random training time, whichever is larger. A few draws per update
+    /// keep cells that a moving object crosses only briefly from decaying away.
+    fn update_occupancy(&mut self, rng: &mut StdRng) {
+        const TIME_DRAWS: usize = 4;
+        let Some(grid) = self.occupancy.as_mut() else {
+            return;
+        };
+        let fields = self.fields.valid();
+        let plain = self.device.clone().inner();
+        let (aabb, times) = (self.bounds.aabb, &self.video.times);
+        let step_size = self.cfg.base.fast.march.step;
+        let mut density = |p: &[f32]| -> Vec<f32> {
+            let n = p.len() / 3;
+            let mut best = vec![0.0f32; n];
+            let draws = if fields.dynamic.is_some() { TIME_DRAWS } else { 1 };
+            for _ in 0..draws {
+                let t: Vec<f32> = (0..n).map(|_| times[rng.random_range(0..times.len())]).collect();
+                let sigma = occupancy_density(&fields, p, &t, aabb, &plain).unwrap_or_default();
+                for (b, s) in best.iter_mut().zip(sigma) {
+                    *b = b.max(s);
+                }
+            }
+            best
+        };
+        let mut grid_rng = StdRng::seed_from_u64(self.step as u64);
+        grid.update(self.step, step_size, &mut grid_rng, &mut density);
+    }
+
+    /// The loss of one step (NSFF HEAD's terms, method.md §4.6); `None` when no ray has samples.
     fn step_loss(&self, rng: &mut StdRng) -> Option<(Tensor<1>, StepStats)> {
         let dev = &self.device;
         let v = &self.video;
@@ -274,25 +348,21 @@ impl NsffTrainer {
         let view = &ds.views[v.frames[k]];
         let cam = view.camera;
         let (w, h) = (view.image.width, view.image.height);
-        let pixels: Vec<u32> = (0..self.cfg.rays).map(|_| rng.random_range(0..w * h)).collect();
+        let pixels: Vec<u32> = (0..self.n_rays).map(|_| rng.random_range(0..w * h)).collect();
         let rays = ds.rays_for(&cam, pixels.iter().copied());
         let target: Vec<f32> = pixels
             .iter()
             .flat_map(|&p| view.image.pixel(p as usize)[..3].to_vec())
             .collect();
         let target = tensor(target, 3, dev);
-        let samples = sample_rays(
-            &rays,
-            &self.bounds,
-            self.cfg.samples,
-            !self.bounds.open_far,
-            Some(rng),
-        );
+        let march = self.occupancy.as_ref().map(|g| (g, &self.cfg.base.fast.march));
+        let clip = !self.bounds.open_far;
+        let samples = sample_rays(&rays, &self.bounds, self.cfg.samples, clip, march, Some(rng));
         let s_n = samples.num_samples();
         if s_n == 0 {
             return None;
         }
-        let layout = samples.layout(&rays, self.bounds.open_far);
+        let layout = samples.layout(&rays, self.bounds.open_far && march.is_none());
         let x = tensor(samples.positions(&rays), 3, dev);
         let dirs = samples.per_sample3(&rays.viewdirs());
         let t_col = tensor(samples.t.clone(), 1, dev);
@@ -449,15 +519,9 @@ impl NsffTrainer {
         ))
     }
 
-    /// Trains until a budget is reached (as `nerf train`).
+    /// Trains until a budget is reached (the static pipeline's loop).
     pub fn train(&mut self, show_progress: bool) -> Result<()> {
-        let log = MetricsLog::open(&self.run_dir.join(METRICS), (self.step > 0).then_some(self.step))?;
-        let b = &self.cfg.base;
-        let progress = Progress::new(b.steps, b.time_budget, self.step, self.elapsed);
-        if !show_progress {
-            progress.finish();
-        }
-        progress.println(format!(
+        let header = format!(
             "{}; {} frames; independent motion in {:.2}% of flow pixels: dynamic field {}",
             self.video.dataset.describe(),
             self.video.frames.len(),
@@ -467,86 +531,8 @@ impl NsffTrainer {
             } else {
                 "off (static scene)"
             }
-        ));
-        let mut bad = 0usize;
-        let mut next_eval = if b.eval_every_secs > 0.0 {
-            b.eval_every_secs * ((self.elapsed / b.eval_every_secs).floor() + 1.0)
-        } else {
-            f64::INFINITY
-        };
-        let mut last_print = Instant::now();
-        while self.step < self.cfg.base.steps && self.cfg.base.time_budget.is_none_or(|tb| self.elapsed < tb)
-        {
-            let t0 = Instant::now();
-            let stats = self.train_step();
-            self.elapsed += t0.elapsed().as_secs_f64();
-            let Some(stats) = stats else {
-                bad += 1;
-                progress.println(format!(
-                    "step {}: non-finite loss, step skipped ({bad} in a row)",
-                    self.step
-                ));
-                if bad >= MAX_BAD_STEPS {
-                    let msg = format!(
-                        "{MAX_BAD_STEPS} non-finite losses in a row at step {}; rolling back to the last checkpoint",
-                        self.step
-                    );
-                    progress.println(&msg);
-                    log.append(&MetricsRecord {
-                        step: self.step,
-                        time: self.elapsed,
-                        note: Some(msg),
-                        ..Default::default()
-                    })?;
-                    self.rollback()?;
-                    bad = 0;
-                }
-                continue;
-            };
-            bad = 0;
-            let rays_per_sec = stats.rays as f64 / t0.elapsed().as_secs_f64().max(1e-9);
-            progress.update(
-                self.step,
-                self.elapsed,
-                format!(
-                    "step {} loss {:.4} psnr {:.2} {:.0} rays/s",
-                    self.step, stats.loss, stats.psnr, rays_per_sec
-                ),
-            );
-            if progress.is_hidden() && last_print.elapsed().as_secs_f64() > 10.0 {
-                eprintln!(
-                    "step {} ({:.0} s) loss {:.4} train psnr {:.2} {:.0} rays/s",
-                    self.step, self.elapsed, stats.loss, stats.psnr, rays_per_sec
-                );
-                last_print = Instant::now();
-            }
-            let mut record = MetricsRecord {
-                step: self.step,
-                time: self.elapsed,
-                loss: Some(stats.loss),
-                train_psnr: Some(stats.psnr),
-                rays_per_sec: Some(rays_per_sec),
-                samples_per_ray: Some(stats.samples as f64 / stats.rays.max(1) as f64),
-                ..Default::default()
-            };
-            if self.elapsed >= next_eval {
-                let views = crate::eval::quick_views(&self.video.dataset);
-                let e = crate::eval::evaluate(self, &views, false, None)?;
-                progress.println(format!(
-                    "step {} ({:.0} s): test psnr {:.2}",
-                    self.step, self.elapsed, e.mean_psnr
-                ));
-                record.test_psnr = Some(e.mean_psnr);
-                next_eval += self.cfg.base.eval_every_secs;
-            }
-            log.append(&record)?;
-            if self.step.is_multiple_of(self.cfg.base.checkpoint_every.max(1)) {
-                self.save()?;
-            }
-        }
-        progress.finish();
-        self.save()?;
-        nerf::plot::training_curve(&self.run_dir.join(METRICS), &self.run_dir.join("psnr.png"))
+        );
+        nerf::train_loop::train(self, &header, show_progress)
     }
 
     fn rollback(&mut self) -> Result<()> {
@@ -577,4 +563,40 @@ fn adjacent_pairs(samples: &nerf_core::sampler::RaySamples, frac: f32) -> (Vec<i
         }
     }
     (a, b)
+}
+
+impl nerf::train_loop::Trainable for NsffTrainer {
+    fn config(&self) -> &nerf::config::TrainConfig {
+        &self.cfg.base
+    }
+    fn run_dir(&self) -> &Path {
+        &self.run_dir
+    }
+    fn step(&self) -> usize {
+        self.step
+    }
+    fn elapsed(&self) -> f64 {
+        self.elapsed
+    }
+    fn add_elapsed(&mut self, secs: f64) {
+        self.elapsed += secs;
+    }
+    fn train_step(&mut self) -> Option<StepStats> {
+        NsffTrainer::train_step(self)
+    }
+    fn save(&self) -> Result<()> {
+        NsffTrainer::save(self)
+    }
+    fn rollback(&mut self) -> Result<()> {
+        NsffTrainer::rollback(self)
+    }
+    fn quick_eval(&mut self) -> Result<f64> {
+        let views = crate::eval::quick_views(&self.video.dataset);
+        Ok(crate::eval::evaluate(self, &views, false, None)?.mean_psnr)
+    }
+    fn status(&self) -> String {
+        self.occupancy.as_ref().map_or(String::new(), |o| {
+            format!(", {:.1}% occupied", 100.0 * o.occupied_fraction())
+        })
+    }
 }

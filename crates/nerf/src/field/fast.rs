@@ -88,6 +88,13 @@ impl FastField {
             .exp()
     }
 
+    /// Density `[S, 1]` and the extra head's raw outputs `[S, E]` (no colour).
+    pub fn density_extra(&self, normalized: Tensor<2>) -> (Tensor<2>, Option<Tensor<2>>) {
+        let geo = self.geometry(normalized);
+        let extra = self.extra.as_ref().map(|head| head.forward(geo.clone()));
+        (self.sigma(&geo), extra)
+    }
+
     /// Density only, `[S, 1]` (occupancy updates, early termination).
     pub fn density(&self, normalized: Tensor<2>) -> Tensor<2> {
         self.sigma(&self.geometry(normalized))
