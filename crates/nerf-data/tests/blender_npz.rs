@@ -6,34 +6,8 @@ use nerf_data::npy::encode_npy;
 use nerf_data::npz::write_zip;
 use nerf_data::{Dataset, Format, Image, LoadOptions, blender, tiny_npz};
 
-/// A unique temporary folder, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(name: &str) -> Self {
-        let dir = std::env::temp_dir().join(format!("nerf-data-blender-npz-{}-{name}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        TempDir(dir)
-    }
-
-    fn path(&self) -> &Path {
-        &self.0
-    }
-
-    fn write(&self, rel: &str, bytes: &[u8]) -> PathBuf {
-        let p = self.0.join(rel);
-        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-        std::fs::write(&p, bytes).unwrap();
-        p
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+mod common;
+use common::TempDir;
 
 fn shared(rel: &str) -> Option<PathBuf> {
     match nerf_data::shared_data() {
@@ -428,7 +402,7 @@ fn bad_npz_inputs_name_the_file_and_the_problem() {
     let poses = encode_npy(&[1, 4, 4], &[0.0; 16], true);
     let no_focal = dir.write(
         "no_focal.npz",
-        &write_zip(&[("images.npy", &images), ("poses.npy", &poses)], false),
+        write_zip(&[("images.npy", &images), ("poses.npy", &poses)], false),
     );
     assert_mentions(
         &npz_err(&no_focal),
@@ -443,7 +417,7 @@ fn bad_npz_inputs_name_the_file_and_the_problem() {
 
     let wrong = dir.write(
         "wrong_shape.npz",
-        &write_zip(
+        write_zip(
             &[
                 ("images.npy", &encode_npy(&[2, 4, 4], &[0.0; 32], true)),
                 ("poses.npy", &poses),

@@ -4,7 +4,6 @@
 //! The bounds quote the values measured when they were set (release build); each is loose
 //! enough for float noise but fails if the estimator or a convention broke.
 
-use std::path::PathBuf;
 use std::time::Instant;
 
 use nerf_data::flow::{
@@ -14,25 +13,8 @@ use nerf_data::flow::{
 use nerf_data::synth::{Preset, Scene, Split, SynthConfig, SynthView};
 use nerf_data::{Camera, FlowField, Image, Pose};
 
-/// A fresh, unique temporary folder, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> TempDir {
-        static COUNTER: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-        let k = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let dir = std::env::temp_dir().join(format!("nerf-data-flow-{tag}-{}-{k}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        TempDir(dir)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+mod common;
+use common::TempDir;
 
 /// A video preset rendered in memory: frames composited over the background, their cameras,
 /// the views (for times) and the object id of every pixel.

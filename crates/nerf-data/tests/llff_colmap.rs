@@ -8,6 +8,9 @@ use nerf_data::colmap::{self, ColmapCamera, ColmapImage, ColmapModel, ColmapPoin
 use nerf_data::math;
 use nerf_data::{AxisConvention, Dataset, Format, Image, LoadOptions, Pose, llff};
 
+mod common;
+use common::TempDir;
+
 fn beer() -> Option<PathBuf> {
     let dir = nerf_data::shared_data()?.join("llff/beer");
     if dir.is_dir() {
@@ -28,26 +31,6 @@ macro_rules! beer_or_skip {
             }
         }
     };
-}
-
-/// A fresh, unique temporary folder, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> TempDir {
-        static COUNTER: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-        let k = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let dir = std::env::temp_dir().join(format!("nerf-data-llff-{tag}-{}-{k}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        TempDir(dir)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
 }
 
 fn err_text<T: std::fmt::Debug>(r: nerf_data::Result<T>) -> String {

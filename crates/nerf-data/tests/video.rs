@@ -1,30 +1,13 @@
 //! NSFF-style video folders: frames, times, folder choice, priors and bad priors.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use nerf_data::npy::encode_npy;
 use nerf_data::npz::write_zip;
 use nerf_data::{Format, Image, LoadOptions, video};
 
-/// A fresh, unique temporary folder, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> TempDir {
-        static COUNTER: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-        let k = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let dir = std::env::temp_dir().join(format!("nerf-data-video-{tag}-{}-{k}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        TempDir(dir)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+mod common;
+use common::TempDir;
 
 fn err_text<T: std::fmt::Debug>(r: nerf_data::Result<T>) -> String {
     r.expect_err("expected an error").to_string()

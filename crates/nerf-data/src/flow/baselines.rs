@@ -2,7 +2,7 @@
 //! [`crate::flow`] for the numbers): Horn–Schunck with warping and median filtering, and dense
 //! Lucas–Kanade with a Gaussian window. Both run inside the same pyramid as TV-L1.
 
-use super::plane::{Flow, Plane, for_rows, warp};
+use super::plane::{Flow, Linearised, Plane, for_rows};
 
 /// Horn–Schunck at one level: quadratic data and smoothness terms, Jacobi iterations on the
 /// linearised Euler–Lagrange equations, `warps` relinearisations with a median filter after each.
@@ -20,19 +20,10 @@ pub(crate) fn horn_schunck(
     let (i1x, i1y) = i1.gradients();
     let a2 = alpha * alpha;
     for _ in 0..warps {
-        let i1w = warp(i1, &flow);
-        let gx = warp(&i1x, &flow);
-        let gy = warp(&i1y, &flow);
-        let rho_c: Vec<f32> = (0..w * h)
-            .map(|i| i1w.data[i] - gx.data[i] * flow.u.data[i] - gy.data[i] * flow.v.data[i] - i0.data[i])
-            .collect();
-        let mut uv: Vec<[f32; 2]> = flow
-            .u
-            .data
-            .iter()
-            .zip(&flow.v.data)
-            .map(|(&a, &b)| [a, b])
-            .collect();
+        let lin = Linearised::new(i1, &i1x, &i1y, &flow);
+        let rho_c = lin.residual_constant(i0, &flow);
+        let (gx, gy) = (&lin.gx, &lin.gy);
+        let mut uv = flow.pairs();
         let mut next = uv.clone();
         for _ in 0..iterations {
             {
@@ -64,10 +55,7 @@ pub(crate) fn horn_schunck(
             }
             std::mem::swap(&mut uv, &mut next);
         }
-        for (i, u) in uv.iter().enumerate() {
-            flow.u.data[i] = u[0];
-            flow.v.data[i] = u[1];
-        }
+        flow.set_pairs(&uv);
         flow = flow.median(median_radius);
     }
     flow
@@ -86,9 +74,7 @@ pub(crate) fn lucas_kanade(
     let (w, h) = (i0.w, i0.h);
     let (i1x, i1y) = i1.gradients();
     for _ in 0..warps {
-        let i1w = warp(i1, &flow);
-        let gx = warp(&i1x, &flow);
-        let gy = warp(&i1y, &flow);
+        let Linearised { i1: i1w, gx, gy } = Linearised::new(i1, &i1x, &i1y, &flow);
         let it: Vec<f32> = (0..w * h).map(|i| i1w.data[i] - i0.data[i]).collect();
         let prod =
             |f: &(dyn Fn(usize) -> f32 + Sync + Send)| Plane::from_fn(w, h, |x, y| f(y * w + x)).blur(sigma);
@@ -100,13 +86,7 @@ pub(crate) fn lucas_kanade(
         let (xt, yt) = (prod(&|i| gx.data[i] * it[i]), prod(&|i| gy.data[i] * it[i]));
         // A small ridge keeps flat windows (no texture) from producing huge updates.
         let ridge = 1.0;
-        let mut uv: Vec<[f32; 2]> = flow
-            .u
-            .data
-            .iter()
-            .zip(&flow.v.data)
-            .map(|(&a, &b)| [a, b])
-            .collect();
+        let mut uv = flow.pairs();
         for_rows(&mut uv, w, |y, row| {
             for (x, u) in row.iter_mut().enumerate() {
                 let i = y * w + x;
@@ -117,10 +97,7 @@ pub(crate) fn lucas_kanade(
                 u[1] -= (a * by - b * bx) / det;
             }
         });
-        for (i, u) in uv.iter().enumerate() {
-            flow.u.data[i] = u[0];
-            flow.v.data[i] = u[1];
-        }
+        flow.set_pairs(&uv);
         flow = flow.median(median_radius);
     }
     flow

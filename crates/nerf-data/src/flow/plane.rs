@@ -288,6 +288,24 @@ impl Flow {
         }
     }
 
+    /// The vectors as (dx, dy) pairs, the layout the per-level solvers iterate on.
+    pub fn pairs(&self) -> Vec<[f32; 2]> {
+        self.u
+            .data
+            .iter()
+            .zip(&self.v.data)
+            .map(|(&a, &b)| [a, b])
+            .collect()
+    }
+
+    /// Sets the vectors from (dx, dy) pairs.
+    pub fn set_pairs(&mut self, uv: &[[f32; 2]]) {
+        for (i, u) in uv.iter().enumerate() {
+            self.u.data[i] = u[0];
+            self.v.data[i] = u[1];
+        }
+    }
+
     /// Interleaved `[H*W*2]` (dx, dy), the layout of [`crate::FlowField`].
     pub fn interleaved(&self) -> Vec<f32> {
         self.u
@@ -305,6 +323,39 @@ pub(crate) fn warp(img: &Plane, flow: &Flow) -> Plane {
         let i = y * img.w + x;
         img.sample_cubic(x as f32 + flow.u.data[i], y as f32 + flow.v.data[i])
     })
+}
+
+/// Frame 1 and its gradients warped by the current flow: one relinearisation of brightness
+/// constancy I1(p + u) = I0(p) around the flow, shared by the per-level solvers.
+pub(crate) struct Linearised {
+    /// I1 warped by the flow.
+    pub i1: Plane,
+    /// ∂I1/∂x and ∂I1/∂y warped by the flow.
+    pub gx: Plane,
+    pub gy: Plane,
+}
+
+impl Linearised {
+    /// `i1x`, `i1y`: the gradients of `i1` (computed once per level, not per warp).
+    pub fn new(i1: &Plane, i1x: &Plane, i1y: &Plane, flow: &Flow) -> Linearised {
+        Linearised {
+            i1: warp(i1, flow),
+            gx: warp(i1x, flow),
+            gy: warp(i1y, flow),
+        }
+    }
+
+    /// ρ_c = I1w − ∇I1w·u0 − I0 per pixel, so the linearised residual is ρ(u) = ρ_c + ∇I1w·u.
+    pub fn residual_constant(&self, i0: &Plane, flow: &Flow) -> Vec<f32> {
+        (0..i0.data.len())
+            .map(|i| {
+                self.i1.data[i]
+                    - self.gx.data[i] * flow.u.data[i]
+                    - self.gy.data[i] * flow.v.data[i]
+                    - i0.data[i]
+            })
+            .collect()
+    }
 }
 
 #[cfg(test)]

@@ -12,7 +12,7 @@
 //! the regulariser is Huber-TV (Werlberger et al. 2009): quadratic for small flow gradients, so
 //! flow varies smoothly across textureless patches instead of forming staircases.
 
-use super::plane::{Flow, Plane, for_rows, rows_sum, warp};
+use super::plane::{Flow, Linearised, Plane, for_rows, rows_sum};
 
 /// TV-L1 weights. λ is for intensities in [0, 255] (the solver's internal scale).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -64,20 +64,10 @@ pub(crate) fn refine(
     let lt = p.lambda * p.theta;
     let step = p.tau / p.theta;
     for _ in 0..warps {
-        let i1w = warp(i1, &flow);
-        let gx = warp(&i1x, &flow);
-        let gy = warp(&i1y, &flow);
-        // ρ(u) = rho_c + ∇I1w·u, with rho_c = I1w − ∇I1w·u0 − I0.
-        let rho_c: Vec<f32> = (0..w * h)
-            .map(|i| i1w.data[i] - gx.data[i] * flow.u.data[i] - gy.data[i] * flow.v.data[i] - i0.data[i])
-            .collect();
-        let mut uv: Vec<[f32; 2]> = flow
-            .u
-            .data
-            .iter()
-            .zip(&flow.v.data)
-            .map(|(&a, &b)| [a, b])
-            .collect();
+        let lin = Linearised::new(i1, &i1x, &i1y, &flow);
+        let rho_c = lin.residual_constant(i0, &flow);
+        let (gx, gy) = (&lin.gx, &lin.gy);
+        let mut uv = flow.pairs();
         for _ in 0..iterations {
             // v step and u step together: u only needs the current dual fields.
             let change = {
@@ -155,10 +145,7 @@ pub(crate) fn refine(
                 break;
             }
         }
-        for (i, u) in uv.iter().enumerate() {
-            flow.u.data[i] = u[0];
-            flow.v.data[i] = u[1];
-        }
+        flow.set_pairs(&uv);
         flow = flow.median(median_radius);
     }
     flow
