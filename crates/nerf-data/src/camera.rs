@@ -183,6 +183,23 @@ impl Pose {
         math::mat_vec(&math::transpose(&self.rotation), math::sub(p, self.translation))
     }
 
+    /// The pose a fraction `r` of the way from `self` to `other`: centres interpolated linearly,
+    /// rotations along the shortest arc (slerp).
+    pub fn lerp(&self, other: &Pose, r: f64) -> Pose {
+        let q = math::slerp(
+            math::mat_to_quat(&self.rotation),
+            math::mat_to_quat(&other.rotation),
+            r,
+        );
+        Pose {
+            rotation: math::quat_to_mat(q),
+            translation: math::add(
+                math::scale(self.translation, 1.0 - r),
+                math::scale(other.translation, r),
+            ),
+        }
+    }
+
     /// `other` applied after `self`: the pose `a ∘ self` where `a` is given as a world transform.
     pub fn transformed(&self, rotation: &Mat3, translation: Vec3) -> Self {
         Pose {
@@ -269,5 +286,33 @@ mod tests {
         // Up in the world is up in the image: smaller row index.
         let (_, v_up, _) = cam.project([0.0, 1.0, 0.0]).unwrap();
         assert!(v_up < 24.0);
+    }
+
+    #[test]
+    fn lerp_interpolates_centre_linearly_and_rotation_along_the_arc() {
+        let a = Pose::look_at([4.0, 0.0, 0.0], [0.0; 3], [0.0, 0.0, 1.0]);
+        let b = Pose::look_at([0.0, 4.0, 2.0], [0.0, 0.0, 2.0], [0.0, 0.0, 1.0]);
+        for (r, pose) in [(0.0, a), (1.0, b)] {
+            let p = a.lerp(&b, r);
+            for (x, y) in p.rotation.iter().flatten().zip(pose.rotation.iter().flatten()) {
+                assert!((x - y).abs() < 1e-12, "endpoint r={r}");
+            }
+        }
+        // Halfway: centre (2, 2, 1); both look horizontally, a along -x, b along -y, so the
+        // halfway camera looks along -(1, 1, 0)/√2 (45° of the 90° turn about z).
+        let m = a.lerp(&b, 0.5);
+        assert!(math::norm(math::sub(m.translation, [2.0, 2.0, 1.0])) < 1e-12);
+        let forward = math::scale(math::column(&m.rotation, 2), -1.0);
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        assert!(
+            math::norm(math::sub(forward, [-h, -h, 0.0])) < 1e-12,
+            "{forward:?}"
+        );
+        let rtr = math::mat_mul(&math::transpose(&m.rotation), &m.rotation);
+        for i in 0..3 {
+            for j in 0..3 {
+                assert!((rtr[i][j] - f64::from(u8::from(i == j))).abs() < 1e-12);
+            }
+        }
     }
 }

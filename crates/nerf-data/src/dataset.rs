@@ -33,7 +33,8 @@ pub enum Format {
 pub enum SceneKind {
     /// An object seen from all around, inside `aabb` (Blender, tiny npz).
     Object,
-    /// A forward-facing capture rendered in NDC (LLFF).
+    /// A real capture looking one general way (LLFF, COLMAP, NSFF video): no background, a
+    /// spiral render path; rays in NDC when [`Dataset::ndc`] is set, else in the frustum box.
     ForwardFacing,
 }
 

@@ -27,7 +27,7 @@ pub use dataset::{Dataset, FlowField, Format, RayBatch, SceneKind, VideoPriors, 
 pub use error::{DataError, Result};
 pub use image::Image;
 pub use ndc::Ndc;
-pub use options::LoadOptions;
+pub use options::{LoadOptions, NDC_MAX_VIEW_ANGLE_DEG, NdcMode};
 pub use rays::Rays;
 
 /// The shared real datasets (`../shared/data` beside the project root), or `None` when absent.

@@ -15,7 +15,7 @@ use crate::error::{DataError, Result};
 use crate::image::Image;
 use crate::math::{self, Mat3, Vec3};
 use crate::ndc::Ndc;
-use crate::options::LoadOptions;
+use crate::options::{LoadOptions, NDC_MAX_VIEW_ANGLE_DEG, NdcMode};
 
 /// LLFF's bd_factor: after rescaling, the nearest bound sits at depth 1/0.75, beyond the NDC near plane.
 const BD_FACTOR: f64 = 0.75;
@@ -184,7 +184,7 @@ pub fn load_with_rows(
             )
         })?;
         bounds.iter_mut().for_each(|b| *b = b.map(|v| v * s));
-        if opts.ndc {
+        if opts.ndc == NdcMode::On {
             notes.push("spherify is set, so rays stay Euclidean (NDC is for forward-facing scenes)".into());
         }
     }
@@ -223,8 +223,29 @@ pub fn load_with_rows(
         })
         .collect();
 
-    let use_ndc = opts.ndc && !opts.spherify;
-    let (kind, near, far, ndc, aabb) = if use_ndc {
+    let use_ndc = !opts.spherify
+        && match opts.ndc {
+            NdcMode::On => true,
+            NdcMode::Off => false,
+            NdcMode::Auto => {
+                let spread = view_spread_deg(&poses);
+                let forward = spread <= NDC_MAX_VIEW_ANGLE_DEG;
+                if !forward {
+                    notes.push(format!(
+                        "the cameras look up to {spread:.0}° away from their average direction (NDC needs a \
+                         forward-facing capture, at most {NDC_MAX_VIEW_ANGLE_DEG:.0}°): rays stay Euclidean \
+                         inside the cameras' frustum box; --ndc on forces NDC"
+                    ));
+                }
+                forward
+            }
+        };
+    let kind = if opts.spherify {
+        SceneKind::Object
+    } else {
+        SceneKind::ForwardFacing
+    };
+    let (near, far, ndc, aabb) = if use_ndc {
         let ndc = Ndc {
             fx: intrinsics.fx,
             fy: intrinsics.fy,
@@ -232,17 +253,10 @@ pub fn load_with_rows(
             height: height as f64,
             near: 1.0,
         };
-        (
-            SceneKind::ForwardFacing,
-            0.0,
-            1.0,
-            Some(ndc),
-            [[-1.5, -1.5, -1.0], [1.5, 1.5, 1.0]],
-        )
+        (0.0, 1.0, Some(ndc), [[-1.5, -1.5, -1.0], [1.5, 1.5, 1.0]])
     } else {
         let far = far_bound as f32;
         (
-            SceneKind::Object,
             (0.9 * near_bound) as f32,
             far,
             None,
@@ -576,6 +590,18 @@ pub fn average_pose(poses: &[Pose]) -> Pose {
         1.0 / n,
     );
     view_matrix(sum_columns(poses, 2), sum_columns(poses, 1), centre)
+}
+
+/// The largest angle, in degrees, between a camera's viewing axis and the average pose's.
+pub fn view_spread_deg(poses: &[Pose]) -> f64 {
+    let mean_axis = math::normalize(sum_columns(poses, 2));
+    poses
+        .iter()
+        .map(|p| {
+            let axis = math::normalize(math::column(&p.rotation, 2));
+            math::dot(axis, mean_axis).clamp(-1.0, 1.0).acos().to_degrees()
+        })
+        .fold(0.0, f64::max)
 }
 
 /// Re-expresses every pose relative to the average pose, so the mean camera sits near the origin

@@ -234,8 +234,10 @@ fn beer_x8() -> Option<&'static Dataset> {
     static DS: OnceLock<Option<Dataset>> = OnceLock::new();
     DS.get_or_init(|| {
         let dir = beer()?;
+        // NDC forced: these tests check nerf-pytorch's NDC pipeline on real rows.
         let opts = LoadOptions {
             downscale: 8,
+            ndc: nerf_data::NdcMode::On,
             ..LoadOptions::default()
         };
         let t = std::time::Instant::now();
@@ -504,6 +506,10 @@ fn synthetic_llff_loads_with_and_without_ndc() {
     assert_eq!(ds.views.len(), 10);
     assert_eq!(ds.test, vec![0, 8]);
     assert_eq!(ds.kind, nerf_data::SceneKind::ForwardFacing);
+    assert!(
+        ds.ndc.is_some(),
+        "parallel cameras are forward-facing: auto picks NDC"
+    );
     // Bounds 2..10 rescaled by 1/(2 * 0.75).
     assert!((ds.depth_bounds[0] - 4.0 / 3.0).abs() < 1e-6 && (ds.depth_bounds[1] - 20.0 / 3.0).abs() < 1e-5);
     // Cameras along world x, spaced 0.1 * sc after rescale; already facing -z, so recentring only shifts.
@@ -512,7 +518,7 @@ fn synthetic_llff_loads_with_and_without_ndc() {
     assert!((math::norm(math::sub(c1, c0)) - 0.1 / 1.5).abs() < 1e-12);
 
     let opts = LoadOptions {
-        ndc: false,
+        ndc: nerf_data::NdcMode::Off,
         holdout: Some(0),
         ..LoadOptions::default()
     };
@@ -809,4 +815,50 @@ fn invalid_colmap_model_id_is_rejected_with_its_offset() {
     std::fs::write(t.0.join("cameras.txt"), "1 PINHOLE 10 10 1 2 3 4\n").unwrap();
     let e = err_text(colmap::read_model(&t.0));
     assert!(e.contains("points3D.bin") && e.contains("not found"), "{e}");
+}
+
+#[test]
+fn auto_ndc_keeps_euclidean_rays_for_a_capture_that_turns_around_its_object() {
+    let Some(dir) = beer() else {
+        eprintln!("skipping: shared data absent");
+        return;
+    };
+    let opts = LoadOptions {
+        downscale: 8,
+        ..LoadOptions::default()
+    };
+    let ds = llff::load(&dir, &opts).unwrap();
+    // Independent check of the spread: after recentring the mean viewing axis is +z, so each
+    // camera's angle to it is acos of its axis' z component.
+    let angles: Vec<f64> = ds
+        .views
+        .iter()
+        .map(|v| {
+            math::column(&v.camera.pose.rotation, 2)[2]
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees()
+        })
+        .collect();
+    let widest = angles.iter().copied().fold(0.0, f64::max);
+    assert!(
+        angles[16] > 60.0,
+        "camera 16 looks {:.1}° off the mean",
+        angles[16]
+    );
+    let poses: Vec<Pose> = ds.views.iter().map(|v| v.camera.pose).collect();
+    assert!((llff::view_spread_deg(&poses) - widest).abs() < 1e-6);
+    assert!(
+        ds.ndc.is_none(),
+        "beer's cameras span an arc: auto must not pick NDC"
+    );
+    assert_eq!(ds.kind, nerf_data::SceneKind::ForwardFacing);
+    assert!(
+        ds.notes
+            .iter()
+            .any(|n| n.contains("Euclidean") && n.contains("--ndc on")),
+        "the choice is explained: {:?}",
+        ds.notes
+    );
+    assert!(ds.near > 0.0 && ds.far > ds.near);
 }

@@ -186,9 +186,11 @@ impl TrainConfig {
             .fold(0.0f32, f32::max);
         // About 512 steps across the box's diagonal.
         self.fast.march.step = extent * 3f32.sqrt() / 512.0;
-        if dataset.kind == SceneKind::ForwardFacing {
+        if dataset.ndc.is_some() {
             // NDC depth is uniform in disparity over z ∈ [-1, 1]: 128 steps, as NSFF samples.
             self.fast.march.step = 2.0 / 128.0;
+        }
+        if dataset.kind == SceneKind::ForwardFacing {
             self.vanilla.raw_noise_std = 1.0;
             self.random_background = false;
         }

@@ -1,6 +1,7 @@
 //! Static NeRF: fields, the rendering pipeline, training, evaluation and rendering.
 
 pub mod checkpoint;
+pub mod cli;
 pub mod config;
 pub mod eval;
 pub mod field;

@@ -4,11 +4,12 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use nerf::config::{Preset, TrainConfig};
+use nerf::cli::CommonTrainArgs;
+use nerf::config::TrainConfig;
 use nerf::render::{FrameWriter, PathKind, default_path, path_cameras};
 use nerf::trainer::{CHECKPOINT, Trainer, load_dataset};
-use nerf_data::LoadOptions;
 use nerf_data::error::{DataError, Result};
+use nerf_data::{LoadOptions, NdcMode};
 
 #[derive(Parser)]
 #[command(
@@ -69,35 +70,19 @@ enum Command {
 
 #[derive(clap::Args)]
 struct TrainArgs {
-    /// Dataset folder or .npz file; the format is detected.
-    data: PathBuf,
-    /// Run folder for checkpoints, logs and renders (default: runs/<data name>).
-    #[arg(long)]
-    out: Option<PathBuf>,
-    #[arg(long, value_enum, default_value = "fast")]
-    preset: Preset,
-    /// Stop after this many steps (default: 20000 fast, 200000 vanilla; unlimited when only
-    /// --time-budget is given).
-    #[arg(long)]
-    steps: Option<usize>,
-    /// Stop after this many seconds of training (evaluation pauses excluded).
-    #[arg(long)]
-    time_budget: Option<f64>,
-    /// Integer image downscale factor.
-    #[arg(long, default_value_t = 1)]
-    downscale: u32,
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// Continue from RUN_DIR/checkpoint.bin (budgets given here replace the saved ones).
-    #[arg(long)]
-    resume: bool,
+    #[command(flatten)]
+    common: CommonTrainArgs,
     /// Hold out every N-th view for testing (default: the format's convention).
     #[arg(long)]
     holdout: Option<usize>,
     /// Composite RGBA images over black instead of white (Blender).
     #[arg(long)]
     black_background: bool,
-    /// Forward-facing scenes: do not warp rays to NDC.
+    /// LLFF/COLMAP captures: warp rays to NDC: `auto` does when every camera looks within 30° of
+    /// the average direction (a forward-facing capture), `on` always, `off` never.
+    #[arg(long, default_value = "auto", value_name = "auto|on|off")]
+    ndc: NdcMode,
+    /// Same as `--ndc off`.
     #[arg(long)]
     no_ndc: bool,
     /// Fast preset: march every step through the box instead of skipping empty space.
@@ -107,24 +92,12 @@ struct TrainArgs {
     /// never terminates early unless --set fast.train_early_termination=true).
     #[arg(long)]
     no_early_termination: bool,
-    /// Evaluate a few held-out views every SECS seconds of training (0 = never).
-    #[arg(long, default_value_t = 0.0)]
-    eval_every: f64,
     /// Checkpoint every N steps (default: 500 fast, 50 vanilla).
     #[arg(long)]
     checkpoint_every: Option<usize>,
     /// Override the learning rate.
     #[arg(long)]
     lr: Option<f64>,
-    /// Skip the evaluation and path render after training.
-    #[arg(long)]
-    no_render: bool,
-    /// burn backend: flex (default CPU), ndarray, wgpu, cuda or auto.
-    #[arg(long, default_value = "flex")]
-    device: String,
-    /// Override any setting, e.g. --set fast.grid.log2_table=17 --set fast.color_layers=1.
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    overrides: Vec<String>,
 }
 
 #[derive(clap::Args)]
@@ -134,7 +107,8 @@ struct RenderArgs {
     /// Render exactly the cameras of this Blender-format transforms file, one PNG per frame in file order.
     #[arg(long)]
     cameras: Option<PathBuf>,
-    /// Camera path (default: orbit for objects, spiral for forward-facing scenes).
+    /// Camera path (default: orbit for objects, spiral for forward-facing captures in NDC, the
+    /// capture's own trajectory for the others).
     #[arg(long, value_enum)]
     path: Option<PathKind>,
     /// Frames on the path.
@@ -214,31 +188,17 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
-fn default_run_dir(data: &Path) -> PathBuf {
-    let name = data
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "run".into());
-    PathBuf::from("runs").join(name)
-}
-
 fn train(args: TrainArgs) -> Result<()> {
-    let run_dir = args.out.clone().unwrap_or_else(|| default_run_dir(&args.data));
-    let mut trainer = if args.resume {
+    let common = &args.common;
+    let run_dir = common.run_dir("");
+    let mut trainer = if common.resume {
         if !run_dir.join(CHECKPOINT).exists() {
             return Err(DataError::invalid(
                 &run_dir,
                 "--resume: no checkpoint.bin in the run folder",
             ));
         }
-        let t = Trainer::resume(&run_dir, |cfg| {
-            if let Some(s) = args.steps {
-                cfg.steps = s;
-            }
-            if args.time_budget.is_some() {
-                cfg.time_budget = args.time_budget;
-            }
-        })?;
+        let t = Trainer::resume(&run_dir, |cfg| common.apply_budgets(cfg))?;
         eprintln!(
             "resuming {} at step {} ({:.0} s trained)",
             run_dir.display(),
@@ -248,26 +208,17 @@ fn train(args: TrainArgs) -> Result<()> {
         t
     } else {
         let load = LoadOptions {
-            downscale: args.downscale.max(1),
+            downscale: common.downscale.max(1),
             background: args.black_background.then_some([0.0; 3]),
             holdout: args.holdout,
-            ndc: !args.no_ndc,
+            ndc: if args.no_ndc { NdcMode::Off } else { args.ndc },
             spherify: false,
         };
-        let mut cfg = TrainConfig::new(args.preset, args.data.clone(), load);
-        cfg.seed = args.seed;
-        if let Some(s) = args.steps {
-            cfg.steps = s;
-        }
-        cfg.time_budget = args.time_budget;
-        if args.steps.is_none() && args.time_budget.is_some() {
-            // A time budget alone runs until the time is up.
-            cfg.steps = usize::MAX / 4;
-        }
+        let mut cfg = TrainConfig::new(common.preset, common.data.clone(), load);
+        common.apply_fresh(&mut cfg);
         cfg.fast.use_occupancy = !args.no_occupancy;
         cfg.fast.early_termination = !args.no_early_termination;
         cfg.fast.train_early_termination &= !args.no_early_termination;
-        cfg.eval_every_secs = args.eval_every;
         if let Some(c) = args.checkpoint_every {
             cfg.checkpoint_every = c;
         }
@@ -275,11 +226,10 @@ fn train(args: TrainArgs) -> Result<()> {
             cfg.lr_final *= lr / cfg.lr;
             cfg.lr = lr;
         }
-        cfg.device = args.device.clone();
         let dataset = load_dataset(&cfg)?;
         cfg.adapt_to(&dataset);
-        let cfg = nerf::config::apply_overrides(&cfg, &args.overrides)
-            .map_err(|m| DataError::invalid(&args.data, m))?;
+        let cfg = nerf::config::apply_overrides(&cfg, &common.overrides)
+            .map_err(|m| DataError::invalid(&common.data, m))?;
         Trainer::new(cfg, dataset, &run_dir)?
     };
     trainer.train(true)?;
@@ -289,7 +239,7 @@ fn train(args: TrainArgs) -> Result<()> {
         trainer.elapsed,
         run_dir.join(CHECKPOINT).display()
     );
-    if !args.no_render {
+    if !common.no_render {
         let result = write_eval(&trainer, "test", false)?;
         println!("mean_psnr {:.4}", result.mean_psnr);
         let kind = default_path(&trainer.dataset);

@@ -12,15 +12,20 @@ use nerf_data::{Dataset, Image, SceneKind};
 pub enum PathKind {
     /// 360° orbit around the scene at the training cameras' mean radius and elevation.
     Orbit,
-    /// NeRF's forward-facing spiral (LLFF scenes).
+    /// NeRF's forward-facing spiral (LLFF scenes in NDC).
     Spiral,
+    /// Along the training cameras' own path, in file order (captures that walk an arc around
+    /// their subject, where a spiral about the average camera looks past it).
+    Trajectory,
 }
 
-/// The default path for a scene: an orbit for objects, a spiral for forward-facing captures.
+/// The default path for a scene: an orbit for objects, a spiral for forward-facing captures in
+/// NDC, the capture's own trajectory for the others.
 pub fn default_path(dataset: &Dataset) -> PathKind {
-    match dataset.kind {
-        SceneKind::Object => PathKind::Orbit,
-        SceneKind::ForwardFacing => PathKind::Spiral,
+    match (dataset.kind, dataset.ndc.is_some()) {
+        (SceneKind::Object, _) => PathKind::Orbit,
+        (SceneKind::ForwardFacing, true) => PathKind::Spiral,
+        (SceneKind::ForwardFacing, false) => PathKind::Trajectory,
     }
 }
 
@@ -32,6 +37,7 @@ pub fn path_cameras(dataset: &Dataset, kind: PathKind, frames: usize) -> Vec<Cam
     let poses = match kind {
         PathKind::Spiral => nerf_data::llff::spiral_path(dataset, frames),
         PathKind::Orbit => orbit(dataset, frames),
+        PathKind::Trajectory => trajectory(dataset, frames),
     };
     poses.into_iter().map(|p| Camera::new(intrinsics, p)).collect()
 }
@@ -85,6 +91,26 @@ pub fn orbit(dataset: &Dataset, frames: usize) -> Vec<Pose> {
                 math::scale(up, elevation.sin()),
             );
             Pose::look_at(math::add(center, math::scale(dir, radius)), center, up)
+        })
+        .collect()
+}
+
+/// `frames` poses spaced evenly along the training cameras' path (in view order), each
+/// interpolated between its two neighbouring cameras.
+pub fn trajectory(dataset: &Dataset, frames: usize) -> Vec<Pose> {
+    let poses: Vec<Pose> = dataset
+        .train
+        .iter()
+        .map(|&v| dataset.views[v].camera.pose)
+        .collect();
+    let Some(last) = poses.len().checked_sub(1) else {
+        return Vec::new();
+    };
+    (0..frames)
+        .map(|k| {
+            let u = last as f64 * k as f64 / (frames.max(2) - 1) as f64;
+            let a = (u.floor() as usize).min(last.saturating_sub(1));
+            poses[a].lerp(&poses[(a + 1).min(last)], u - a as f64)
         })
         .collect()
 }
@@ -196,4 +222,37 @@ pub fn write_gif(path: &Path, frames: &[Image], delay_cs: u16) -> Result<()> {
         }
     }
     nerf_data::image::write_atomic(path, &bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trajectory_passes_through_every_training_camera_in_order() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/synth_static");
+        let ds = nerf_data::load::load(&dir, &nerf_data::LoadOptions::default()).expect("data/synth_static");
+        let n = ds.train.len();
+        // 2(n − 1) + 1 frames: even frames land on the cameras, odd ones halfway between.
+        let path = trajectory(&ds, 2 * (n - 1) + 1);
+        assert_eq!(path.len(), 2 * n - 1);
+        for (k, &v) in ds.train.iter().enumerate() {
+            let (p, q) = (path[2 * k], ds.views[v].camera.pose);
+            let err = p
+                .rotation
+                .iter()
+                .flatten()
+                .zip(q.rotation.iter().flatten())
+                .chain(p.translation.iter().zip(q.translation.iter()))
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            assert!(err < 1e-9, "frame {} is not training camera {k}: {err}", 2 * k);
+        }
+        let (a, b) = (
+            ds.views[ds.train[0]].camera.pose,
+            ds.views[ds.train[1]].camera.pose,
+        );
+        let mid = math::scale(math::add(a.translation, b.translation), 0.5);
+        assert!(math::norm(math::sub(path[1].translation, mid)) < 1e-9);
+    }
 }

@@ -3,7 +3,7 @@
 
 use nerf::config::{Preset, TrainConfig};
 use nerf_core::encoding::HashGridConfig;
-use nerf_data::{Dataset, LoadOptions, SceneKind};
+use nerf_data::{Dataset, LoadOptions};
 use serde::{Deserialize, Serialize};
 
 /// Loss weights (NSFF HEAD defaults).
@@ -94,16 +94,42 @@ pub struct NsffConfig {
     pub dynamic: DynamicMode,
     /// Independent-motion threshold (pixels of epipolar error), for `DynamicMode::Auto`.
     pub motion_threshold_px: f32,
+    /// Epipolar-error threshold of the per-frame motion masks (hard mining, static batch). Lower
+    /// than the decision's: motion along an epipolar line shows only part of its flow there, and
+    /// the built-in flow's error is about 0.15 px.
+    #[serde(default = "default_mask_threshold_px")]
+    pub mask_threshold_px: f32,
     /// Initial logit of the blend weight b (the dynamic share): −3 gives b ≈ 0.05.
     #[serde(default = "default_blend_init_logit")]
     pub blend_init_logit: f32,
     /// At render time, samples whose blend weight is below this skip the dynamic field.
     pub blend_skip: f32,
     pub time_interp: TimeInterp,
+    /// NSFF's hard mining: while the decaying terms are at full weight, each step adds this
+    /// fraction of its rays again, drawn from the frame's motion mask (NSFF: 512 on 1024).
+    #[serde(default = "default_hard_fraction")]
+    pub hard_fraction: f32,
+    /// Each step also renders the static field alone on as many rays again, drawn from all
+    /// frames outside their motion masks: the static pipeline's cheap step, so the background
+    /// learns as fast as in `nerf` while the costly dynamic terms see one frame per step.
+    #[serde(default = "default_static_batch")]
+    pub static_batch: bool,
+}
+
+fn default_mask_threshold_px() -> f32 {
+    0.5
+}
+
+fn default_hard_fraction() -> f32 {
+    0.5
+}
+
+fn default_static_batch() -> bool {
+    true
 }
 
 fn default_min_rays() -> usize {
-    256
+    64
 }
 
 fn default_blend_init_logit() -> f32 {
@@ -145,9 +171,12 @@ impl NsffConfig {
             decay_steps: 25_000,
             dynamic: DynamicMode::Auto,
             motion_threshold_px: 1.0,
+            mask_threshold_px: default_mask_threshold_px(),
             blend_init_logit: default_blend_init_logit(),
             blend_skip: 1e-2,
             time_interp: TimeInterp::Splat,
+            hard_fraction: default_hard_fraction(),
+            static_batch: default_static_batch(),
         }
     }
 
@@ -160,7 +189,7 @@ impl NsffConfig {
         self.dynamic_grid.time_resolution = Some((frames.max(2) - 1) as u32);
         // NSFF's D: min(max(25, frames), 250); weights decay by 10 every 1000·D steps.
         self.decay_steps = 1000 * frames.clamp(25, 250);
-        if dataset.kind == SceneKind::ForwardFacing {
+        if dataset.ndc.is_some() {
             self.samples = 128;
             self.flow_scale = 1.0;
         } else {

@@ -4,11 +4,11 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use nerf::config::{Preset, apply_overrides};
+use nerf::cli::CommonTrainArgs;
+use nerf::config::apply_overrides;
 use nerf::render::FrameWriter;
 use nerf_data::error::{DataError, Result};
-use nerf_data::math;
-use nerf_data::{Camera, Image, LoadOptions, Pose};
+use nerf_data::{Camera, Image, LoadOptions};
 use nsff::config::{DynamicMode, NsffConfig, TimeInterp};
 use nsff::eval::{evaluate, render_at};
 use nsff::trainer::{CHECKPOINT, NsffTrainer, load_video};
@@ -41,41 +41,14 @@ enum Command {
 
 #[derive(clap::Args)]
 struct TrainArgs {
-    /// Video folder.
-    data: PathBuf,
-    #[arg(long)]
-    out: Option<PathBuf>,
-    #[arg(long, value_enum, default_value = "fast")]
-    preset: Preset,
-    #[arg(long)]
-    steps: Option<usize>,
-    /// Seconds of training (evaluation pauses excluded).
-    #[arg(long)]
-    time_budget: Option<f64>,
-    #[arg(long, default_value_t = 1)]
-    downscale: u32,
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// Continue from RUN_DIR/checkpoint.bin.
-    #[arg(long)]
-    resume: bool,
+    #[command(flatten)]
+    common: CommonTrainArgs,
     /// Model independent motion: auto (from the optical flow), on or off.
     #[arg(long, value_enum, default_value = "auto")]
     dynamic: DynamicMode,
     /// Renders between frames: splat (NSFF) or direct (query the field at that time).
     #[arg(long, value_enum, default_value = "splat")]
     time_interp: TimeInterp,
-    /// Evaluate a few held-out views every SECS seconds of training (0 = never).
-    #[arg(long, default_value_t = 0.0)]
-    eval_every: f64,
-    /// Skip the evaluation and renders after training.
-    #[arg(long)]
-    no_render: bool,
-    #[arg(long, default_value = "flex")]
-    device: String,
-    /// Override any setting, e.g. --set weights.cycle=0.5 --set rays=1024.
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    overrides: Vec<String>,
 }
 
 /// Camera paths for dynamic scenes.
@@ -130,33 +103,16 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 fn train(args: TrainArgs) -> Result<()> {
-    let run_dir = args.out.clone().unwrap_or_else(|| {
-        let name = args
-            .data
-            .file_name()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "video".into());
-        PathBuf::from("runs").join(format!("nsff-{name}"))
-    });
-    let mut t = if args.resume {
+    let common = &args.common;
+    let run_dir = common.run_dir("nsff-");
+    let mut t = if common.resume {
         if !run_dir.join(CHECKPOINT).exists() {
             return Err(DataError::invalid(
                 &run_dir,
                 "--resume: no checkpoint.bin in the run folder",
             ));
         }
-        let t = NsffTrainer::resume(
-            &run_dir,
-            |cfg| {
-                if let Some(s) = args.steps {
-                    cfg.base.steps = s;
-                }
-                if args.time_budget.is_some() {
-                    cfg.base.time_budget = args.time_budget;
-                }
-            },
-            false,
-        )?;
+        let t = NsffTrainer::resume(&run_dir, |cfg| common.apply_budgets(&mut cfg.base), false)?;
         eprintln!(
             "resuming {} at step {} ({:.0} s trained)",
             run_dir.display(),
@@ -166,25 +122,17 @@ fn train(args: TrainArgs) -> Result<()> {
         t
     } else {
         let load = LoadOptions {
-            downscale: args.downscale.max(1),
+            downscale: common.downscale.max(1),
             ..LoadOptions::default()
         };
-        let mut cfg = NsffConfig::new(args.preset, args.data.clone(), load);
-        cfg.base.seed = args.seed;
-        if let Some(s) = args.steps {
-            cfg.base.steps = s;
-        }
-        cfg.base.time_budget = args.time_budget;
-        if args.steps.is_none() && args.time_budget.is_some() {
-            cfg.base.steps = usize::MAX / 4;
-        }
-        cfg.base.eval_every_secs = args.eval_every;
-        cfg.base.device = args.device.clone();
+        let mut cfg = NsffConfig::new(common.preset, common.data.clone(), load);
+        common.apply_fresh(&mut cfg.base);
         cfg.dynamic = args.dynamic;
         cfg.time_interp = args.time_interp;
         let video = load_video(&cfg, &run_dir, false)?;
         cfg.adapt_to(&video.dataset, video.frames.len());
-        let cfg = apply_overrides(&cfg, &args.overrides).map_err(|m| DataError::invalid(&args.data, m))?;
+        let cfg =
+            apply_overrides(&cfg, &common.overrides).map_err(|m| DataError::invalid(&common.data, m))?;
         NsffTrainer::new(cfg, video, &run_dir)?
     };
     t.train(true)?;
@@ -194,7 +142,7 @@ fn train(args: TrainArgs) -> Result<()> {
         t.elapsed,
         run_dir.join(CHECKPOINT).display()
     );
-    if !args.no_render {
+    if !common.no_render {
         let r = write_eval(&t, false)?;
         println!("mean_psnr {:.4}", r.mean_psnr);
         render_path(&t, PathKind::Spacetime, 0, 48, &run_dir.join("render"))?;
@@ -289,14 +237,10 @@ fn render_path(t: &NsffTrainer, kind: PathKind, frame: usize, n: usize, out: &Pa
     let last = v.frames.len() - 1;
     let pairs: Vec<(Camera, f32)> = match kind {
         PathKind::Bullet => {
-            let poses = if v.dataset.ndc.is_some() {
-                nerf_data::llff::spiral_path(&v.dataset, n)
-            } else {
-                nerf::render::orbit(&v.dataset, n)
-            };
-            poses
+            let kind = nerf::render::default_path(&v.dataset);
+            nerf::render::path_cameras(&v.dataset, kind, n)
                 .into_iter()
-                .map(|p| (Camera::new(cam_of(frame).intrinsics, p), v.times[frame]))
+                .map(|c| (Camera::new(cam_of(frame).intrinsics, c.pose), v.times[frame]))
                 .collect()
         }
         PathKind::Timelapse => (0..n)
@@ -307,19 +251,7 @@ fn render_path(t: &NsffTrainer, kind: PathKind, frame: usize, n: usize, out: &Pa
                 let tau = last as f32 * i as f32 / (n - 1).max(1) as f32;
                 let a = (tau.floor() as usize).min(last.saturating_sub(1));
                 let r = (tau - a as f32) as f64;
-                let (pa, pb) = (cam_of(a).pose, cam_of((a + 1).min(last)).pose);
-                let q = math::slerp(
-                    math::mat_to_quat(&pa.rotation),
-                    math::mat_to_quat(&pb.rotation),
-                    r,
-                );
-                let pose = Pose {
-                    rotation: math::quat_to_mat(q),
-                    translation: math::add(
-                        math::scale(pa.translation, 1.0 - r),
-                        math::scale(pb.translation, r),
-                    ),
-                };
+                let pose = cam_of(a).pose.lerp(&cam_of((a + 1).min(last)).pose, r);
                 let time = v.times[a] + (v.times[(a + 1).min(last)] - v.times[a]) * r as f32;
                 (Camera::new(cam_of(a).intrinsics, pose), time)
             })

@@ -16,6 +16,7 @@ use nerf_core::composite::composite;
 use nerf_core::metrics::psnr_from_mse;
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::optim::AdamParams;
+use nerf_core::profile::span;
 use nerf_data::error::{DataError, Result};
 use rand::{Rng, SeedableRng, rngs::StdRng};
 use serde::{Deserialize, Serialize};
@@ -81,7 +82,7 @@ pub fn load_video(cfg: &NsffConfig, run_dir: &Path, quiet: bool) -> Result<Video
     prepare(
         dataset,
         &run_dir.join("flow_cache"),
-        cfg.motion_threshold_px,
+        (cfg.motion_threshold_px, cfg.mask_threshold_px),
         quiet,
     )
 }
@@ -265,7 +266,7 @@ impl NsffTrainer {
             .wrapping_mul(0x9E37_79B9_7F4A_7C15)
             .wrapping_add(self.step as u64);
         let mut rng = StdRng::seed_from_u64(seed);
-        let Some((loss, stats)) = self.step_loss(&mut rng) else {
+        let Some((loss, stats)) = span("nsff_step_loss", || self.step_loss(&mut rng)) else {
             // Every ray missed the occupied space: nothing to learn from, count the step.
             self.step += 1;
             return Some(StepStats {
@@ -281,24 +282,28 @@ impl NsffTrainer {
             }
             return None;
         }
-        let grads = loss.backward();
+        let grads = span("nsff_backward", || loss.backward());
         let grads = GradientsParams::from_grads(grads, &self.fields);
         let lr = self
             .cfg
             .base
             .lr_at(self.cfg.base.progress(self.step, self.elapsed));
-        self.fields = self.optim.step(lr, self.fields.clone(), grads);
+        self.fields = span("nsff_optimizer", || {
+            self.optim.step(lr, self.fields.clone(), grads)
+        });
         let p = AdamParams {
             beta1: self.cfg.base.adam_beta1,
             beta2: self.cfg.base.adam_beta2,
             epsilon: self.cfg.base.adam_eps,
         };
-        for g in self.fields.grids() {
-            g.adam_step(&p, lr);
-        }
+        span("nsff_grid_adam", || {
+            for g in self.fields.grids() {
+                g.adam_step(&p, lr);
+            }
+        });
         self.step += 1;
         if self.occupancy.as_ref().is_some_and(|o| o.due(self.step)) {
-            self.update_occupancy(&mut rng);
+            span("nsff_occupancy", || self.update_occupancy(&mut rng));
         }
         if self.occupancy.is_some() {
             // Keep about `target_samples` samples per step, as the static trainer does.
@@ -348,13 +353,25 @@ impl NsffTrainer {
         let view = &ds.views[v.frames[k]];
         let cam = view.camera;
         let (w, h) = (view.image.width, view.image.height);
-        let pixels: Vec<u32> = (0..self.n_rays).map(|_| rng.random_range(0..w * h)).collect();
+        let n_uniform = self.n_rays;
+        let mut pixels: Vec<u32> = (0..n_uniform).map(|_| rng.random_range(0..w * h)).collect();
+        let Some(dynamic) = &self.fields.dynamic else {
+            // No independent motion: the static pipeline's photometric loss only.
+            let rays = ds.rays_for(&cam, pixels.iter().copied());
+            let target = pixel_colours(view, &pixels);
+            let (loss, m, s_n) = self.static_photometric(&rays, target, rng)?;
+            return Some((loss, stats(m, rays.len(), s_n)));
+        };
+        if self.step < self.cfg.decay_steps {
+            // Hard mining (NSFF): extra rays where the flow says something moves.
+            let moving: Vec<u32> = (0..w * h).filter(|&p| v.motion_masks[k][p as usize]).collect();
+            if !moving.is_empty() {
+                let extra = (n_uniform as f32 * self.cfg.hard_fraction).round() as usize;
+                pixels.extend((0..extra).map(|_| moving[rng.random_range(0..moving.len())]));
+            }
+        }
         let rays = ds.rays_for(&cam, pixels.iter().copied());
-        let target: Vec<f32> = pixels
-            .iter()
-            .flat_map(|&p| view.image.pixel(p as usize)[..3].to_vec())
-            .collect();
-        let target = tensor(target, 3, dev);
+        let target = tensor(pixel_colours(view, &pixels), 3, dev);
         let march = self.occupancy.as_ref().map(|g| (g, &self.cfg.base.fast.march));
         let clip = !self.bounds.open_far;
         let samples = sample_rays(&rays, &self.bounds, self.cfg.samples, clip, march, Some(rng));
@@ -377,22 +394,6 @@ impl NsffTrainer {
         let wts = &self.cfg.weights;
         let decay = self.cfg.decay(self.step);
         let st = query_static(&self.fields.static_field, x.clone(), &dirs, self.bounds.aabb);
-        let Some(dynamic) = &self.fields.dynamic else {
-            // No independent motion: the static pipeline's photometric loss only.
-            let out = composite(st.sigma, Tensor::cat(vec![st.rgb, t_col], 1), None, &layout, 0.0);
-            let rgb = with_bg(out.clone().slice([0..r_n, 0..3]), out.slice([0..r_n, 4..5]));
-            let loss = mse(rgb, target);
-            let m = loss.clone().inner().into_scalar::<f32>() as f64;
-            return Some((
-                loss,
-                StepStats {
-                    loss: m,
-                    psnr: psnr_from_mse(m),
-                    rays: r_n,
-                    samples: s_n,
-                },
-            ));
-        };
         let flow_scale = self.cfg.flow_scale;
         let dy = query_dynamic(
             dynamic,
@@ -412,7 +413,11 @@ impl NsffTrainer {
         let blend2 = Tensor::cat(vec![st.blend.clone().neg() + 1.0, st.blend.clone()], 1);
         let cb = composite(sigma2, feats2, Some(blend2), &layout, 0.0);
         let rgb_cb = with_bg(cb.clone().slice([0..r_n, 0..3]), cb.slice([0..r_n, 4..5]));
-        let mse_cb = mse(rgb_cb, target.clone());
+        // Over the uniformly drawn rays only, as NSFF: the mined ones would bias the blend.
+        let mse_cb = mse(
+            rgb_cb.slice([0..n_uniform, 0..3]),
+            target.clone().slice([0..n_uniform, 0..3]),
+        );
         let mut loss = mse_cb.clone();
 
         // Dynamic-only render, also integrating the flowed points (for the optical-flow term).
@@ -507,25 +512,88 @@ impl NsffTrainer {
             loss = loss + spatial * wts.smooth;
         }
         loss = loss + entropy(st.blend) * wts.entropy;
+        if self.cfg.static_batch {
+            let (rays_s, target_s) = self.still_pixels(n_uniform, rng);
+            let still = span("nsff_static_batch", || {
+                self.static_photometric(&rays_s, target_s, rng)
+            });
+            if let Some((loss_s, _, _)) = still {
+                loss = loss + loss_s;
+            }
+        }
+        // Ray and sample counts of the space-time batch (what the ray count adapts to).
         let m = mse_cb.inner().into_scalar::<f32>() as f64;
-        Some((
-            loss,
-            StepStats {
-                loss: 0.0,
-                psnr: psnr_from_mse(m),
-                rays: r_n,
-                samples: s_n,
-            },
-        ))
+        Some((loss, stats(m, r_n, s_n)))
+    }
+
+    /// `n` rays from random frames at pixels outside their motion masks, and their colours
+    /// (`[n * 3]`).
+    fn still_pixels(&self, n: usize, rng: &mut StdRng) -> (nerf_data::Rays, Vec<f32>) {
+        let v = &self.video;
+        let mut per_frame: Vec<Vec<u32>> = vec![Vec::new(); v.frames.len()];
+        for _ in 0..n {
+            // A few tries per ray: masks cover a small share of each frame.
+            for _ in 0..8 {
+                let k = rng.random_range(0..v.frames.len());
+                let img = &v.dataset.views[v.frames[k]].image;
+                let p = rng.random_range(0..img.width * img.height);
+                if !v.motion_masks[k][p as usize] {
+                    per_frame[k].push(p);
+                    break;
+                }
+            }
+        }
+        let mut rays = nerf_data::Rays::with_capacity(n);
+        let mut target = Vec::with_capacity(3 * n);
+        for (k, pixels) in per_frame.iter().enumerate().filter(|(_, p)| !p.is_empty()) {
+            let view = &v.dataset.views[v.frames[k]];
+            rays.extend(&v.dataset.rays_for(&view.camera, pixels.iter().copied()));
+            target.extend(pixel_colours(view, pixels));
+        }
+        (rays, target)
+    }
+
+    /// The static field alone on `rays` against `target` (`[R * 3]`): the static pipeline's
+    /// photometric loss, its value, and the sample count. `None` when no ray has samples.
+    fn static_photometric(
+        &self,
+        rays: &nerf_data::Rays,
+        target: Vec<f32>,
+        rng: &mut StdRng,
+    ) -> Option<(Tensor<1>, f64, usize)> {
+        let dev = &self.device;
+        let march = self.occupancy.as_ref().map(|g| (g, &self.cfg.base.fast.march));
+        let clip = !self.bounds.open_far;
+        let samples = sample_rays(rays, &self.bounds, self.cfg.samples, clip, march, Some(rng));
+        let s_n = samples.num_samples();
+        if s_n == 0 {
+            return None;
+        }
+        let r_n = rays.len();
+        let layout = samples.layout(rays, self.bounds.open_far && march.is_none());
+        let x = tensor(samples.positions(rays), 3, dev);
+        let dirs = samples.per_sample3(&rays.viewdirs());
+        let t_col = tensor(samples.t.clone(), 1, dev);
+        let st = query_static(&self.fields.static_field, x, &dirs, self.bounds.aabb);
+        let out = composite(st.sigma, Tensor::cat(vec![st.rgb, t_col], 1), None, &layout, 0.0);
+        let mut rgb = out.clone().slice([0..r_n, 0..3]);
+        if let Some(c) = self.video.dataset.background {
+            let bg = tensor(c.repeat(r_n).to_vec(), 3, dev);
+            rgb = rgb + (out.slice([0..r_n, 4..5]).neg() + 1.0) * bg;
+        }
+        let loss = mse(rgb, tensor(target, 3, dev));
+        let m = loss.clone().inner().into_scalar::<f32>() as f64;
+        Some((loss, m, s_n))
     }
 
     /// Trains until a budget is reached (the static pipeline's loop).
     pub fn train(&mut self, show_progress: bool) -> Result<()> {
         let header = format!(
-            "{}; {} frames; independent motion in {:.2}% of flow pixels: dynamic field {}",
+            "{}; {} frames; independent motion in {:.2}% of flow pixels (motion masks: {:.1}%): dynamic field {}",
             self.video.dataset.describe(),
             self.video.frames.len(),
             100.0 * self.video.moving_fraction,
+            100.0 * self.video.mask_fraction(),
             if self.has_dynamic() {
                 "on"
             } else {
@@ -547,6 +615,23 @@ impl NsffTrainer {
             self.step = 0;
             Ok(())
         }
+    }
+}
+
+/// Colours (`[P * 3]`) of a view's pixels.
+fn pixel_colours(view: &nerf_data::View, pixels: &[u32]) -> Vec<f32> {
+    pixels
+        .iter()
+        .flat_map(|&p| view.image.pixel(p as usize)[..3].to_vec())
+        .collect()
+}
+
+fn stats(mse: f64, rays: usize, samples: usize) -> StepStats {
+    StepStats {
+        loss: mse,
+        psnr: psnr_from_mse(mse),
+        rays,
+        samples,
     }
 }
 

@@ -22,6 +22,18 @@ pub struct Video {
     /// Share of flow pixels the camera motion does not explain, and the decision.
     pub moving_fraction: f32,
     pub has_motion: bool,
+    /// Per frame, its motion mask (`[H*W]` row-major, true = probably moving).
+    pub motion_masks: Vec<Vec<bool>>,
+}
+
+impl Video {
+    /// Share of all frames' pixels inside their motion masks.
+    pub fn mask_fraction(&self) -> f32 {
+        let (inside, all) = self.motion_masks.iter().fold((0usize, 0usize), |(a, b), m| {
+            (a + m.iter().filter(|&&x| x).count(), b + m.len())
+        });
+        inside as f32 / all.max(1) as f32
+    }
 }
 
 /// Orders the training frames by time and checks them: every frame has a time, times strictly
@@ -91,7 +103,10 @@ fn train_json(dataset: &Dataset) -> std::path::PathBuf {
 }
 
 /// Prepares the video: frame order, flows (given, cached or computed), motion decision.
-pub fn prepare(dataset: Dataset, cache_dir: &Path, motion_threshold_px: f32, quiet: bool) -> Result<Video> {
+/// `thresholds_px`: epipolar errors above the first count as motion for the decision, above
+/// the second for the per-frame masks.
+pub fn prepare(dataset: Dataset, cache_dir: &Path, thresholds_px: (f32, f32), quiet: bool) -> Result<Video> {
+    let (motion_threshold_px, mask_threshold_px) = thresholds_px;
     let (frames, times) = check_frames(&dataset)?;
     let n = frames.len();
     let given = dataset.priors.clone().unwrap_or_default();
@@ -128,7 +143,12 @@ pub fn prepare(dataset: Dataset, cache_dir: &Path, motion_threshold_px: f32, qui
     }
     let cameras: Vec<nerf_data::Camera> = frames.iter().map(|&f| dataset.views[f].camera).collect();
     let report = nerf_data::flow::independent_motion(&cameras, &flow_fwd, motion_threshold_px);
+    let motion_masks = nerf_data::flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, mask_threshold_px)
+        .into_iter()
+        .map(|m| m.into_iter().map(|v| v > 0.5).collect())
+        .collect();
     Ok(Video {
+        motion_masks,
         dataset,
         frames,
         times,
