@@ -637,8 +637,10 @@ fn solve3(m: &Mat3, b: Vec3) -> Option<Vec3> {
 /// NeRF's `spherify_poses` for 360° captures: moves the origin to the point nearest all optical
 /// axes, aligns +z with the mean camera offset from it and scales the RMS camera radius to 1.
 /// Returns the scale applied (bounds need it too), or `None` when the axes are parallel.
-fn spherify(poses: &mut [Pose]) -> Option<f64> {
-    // Least squares point nearest to all lines (o_i, d_i): sum (I - d dᵀ) x = sum (I - d dᵀ) o.
+/// The point nearest to all cameras' optical axes (least squares); `None` when the axes are
+/// (nearly) parallel, as in a forward-facing capture.
+pub fn axes_focus(poses: &[Pose]) -> Option<Vec3> {
+    // Point nearest to all lines (o_i, d_i): sum (I - d dᵀ) x = sum (I - d dᵀ) o.
     let mut a = [[0.0; 3]; 3];
     let mut b = [0.0; 3];
     for p in poses.iter() {
@@ -652,7 +654,11 @@ fn spherify(poses: &mut [Pose]) -> Option<f64> {
         }
         b = math::add(b, math::mat_vec(&proj, p.translation));
     }
-    let centre = solve3(&a, b)?;
+    solve3(&a, b)
+}
+
+fn spherify(poses: &mut [Pose]) -> Option<f64> {
+    let centre = axes_focus(poses)?;
     let n = poses.len() as f64;
     let up = math::scale(
         poses.iter().fold([0.0; 3], |acc, p| {
@@ -714,7 +720,10 @@ fn frustum_box(views: &[View], far: f64) -> [[f32; 3]; 2] {
 /// NeRF's forward-facing spiral render path (method.md §1.5 step 6): `frames` poses over two
 /// rotations around the average camera, with radii from the 90th percentile of |camera centre|
 /// per axis, looking at the focus depth derived from `depth_bounds`. Uses all views (as NeRF
-/// does with all poses) in the dataset's recentred, rescaled world frame.
+/// does with all poses) in the dataset's recentred, rescaled world frame. Captures outside NDC
+/// (cameras on an arc around their subject) look instead at the point their optical axes
+/// converge on, when it lies in front of the average camera: NeRF's focus depth, made for
+/// forward-facing scenes, lies far behind such a subject.
 pub fn spiral_path(dataset: &Dataset, frames: usize) -> Vec<Pose> {
     let poses: Vec<Pose> = dataset.views.iter().map(|v| v.camera.pose).collect();
     if poses.is_empty() || frames == 0 {
@@ -737,7 +746,8 @@ pub fn spiral_path(dataset: &Dataset, frames: usize) -> Vec<Pose> {
         })
         .collect();
     let (rots, zrate) = (2.0, 0.5);
-    let target = avg.to_world([0.0, 0.0, -focus]);
+    let converged = axes_focus(&poses).filter(|p| dataset.ndc.is_none() && avg.to_camera(*p)[2] < 0.0);
+    let target = converged.unwrap_or_else(|| avg.to_world([0.0, 0.0, -focus]));
     (0..frames)
         .map(|i| {
             let theta = 2.0 * std::f64::consts::PI * rots * i as f64 / frames as f64;

@@ -861,4 +861,21 @@ fn auto_ndc_keeps_euclidean_rays_for_a_capture_that_turns_around_its_object() {
         ds.notes
     );
     assert!(ds.near > 0.0 && ds.far > ds.near);
+
+    // The spiral looks at the point the optical axes converge on (the can), which every
+    // training camera sees in its image.
+    let focus = llff::axes_focus(&poses).expect("an arc of cameras converges");
+    for v in &ds.views {
+        let (u, vv, depth) = v.camera.project(focus).expect("in front of every camera");
+        let k = v.camera.intrinsics;
+        assert!(depth > 0.0 && (0.0..k.width as f64).contains(&u) && (0.0..k.height as f64).contains(&vv));
+    }
+    for p in llff::spiral_path(&ds, 12) {
+        let forward = math::normalize(math::scale(math::column(&p.rotation, 2), -1.0));
+        let to_focus = math::normalize(math::sub(focus, p.translation));
+        assert!(
+            math::dot(forward, to_focus) > 1.0 - 1e-9,
+            "spiral camera looks past the focus"
+        );
+    }
 }
