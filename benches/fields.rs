@@ -95,7 +95,6 @@ fn nsff_forward(f: &NsffFields, x: &Tensor<2>, dirs: &[f32]) -> Tensor<1> {
 
 fn field_benches(c: &mut Criterion) {
     let dev = Device::flex().autodiff();
-    let plain = dev.clone().inner();
     let (base, nsff_cfg) = configs();
     let vanilla = VanillaFieldConfig::new().init(&dev);
     let fast = fast_config(&base, 0).init(&dev, 0);
@@ -155,7 +154,6 @@ fn field_benches(c: &mut Criterion) {
         })
     });
     g.finish();
-    drop(plain);
 }
 
 /// A grid occupied on a spherical shell of radius 0.8 about two cells thick.

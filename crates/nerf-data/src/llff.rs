@@ -746,7 +746,12 @@ pub fn spiral_path(dataset: &Dataset, frames: usize) -> Vec<Pose> {
         })
         .collect();
     let (rots, zrate) = (2.0, 0.5);
-    let converged = axes_focus(&poses).filter(|p| dataset.ndc.is_none() && avg.to_camera(*p)[2] < 0.0);
+    let converged = dataset
+        .ndc
+        .is_none()
+        .then(|| axes_focus(&poses))
+        .flatten()
+        .filter(|p| avg.to_camera(*p)[2] < 0.0);
     let target = converged.unwrap_or_else(|| avg.to_world([0.0, 0.0, -focus]));
     (0..frames)
         .map(|i| {

@@ -25,6 +25,23 @@ pub struct LossWeights {
     pub depth: f64,
     /// One-sided entropy of the blend weight.
     pub entropy: f64,
+    /// Sparsity of the blended dynamic density b·σ_dy (optical depth per march step) at random
+    /// occupied points at the step's time: space that no training view sees at that time stays
+    /// empty instead of holding whatever the dynamic field makes up there.
+    #[serde(default = "default_sparsity")]
+    pub sparsity: f64,
+    /// Hidden dynamic optical depth per ray: b·σ_dy behind the combined render's visible
+    /// surface on the step's own rays (what the frame's camera cannot see at its time).
+    #[serde(default = "default_hidden")]
+    pub hidden: f64,
+}
+
+fn default_hidden() -> f64 {
+    0.01
+}
+
+fn default_sparsity() -> f64 {
+    0.01
 }
 
 impl Default for LossWeights {
@@ -38,6 +55,8 @@ impl Default for LossWeights {
             optical_flow: 0.02,
             depth: 0.04,
             entropy: 1e-3,
+            sparsity: default_sparsity(),
+            hidden: default_hidden(),
         }
     }
 }
@@ -114,6 +133,13 @@ pub struct NsffConfig {
     /// learns as fast as in `nerf` while the costly dynamic terms see one frame per step.
     #[serde(default = "default_static_batch")]
     pub static_batch: bool,
+    /// Random points per step for the dynamic sparsity term (`weights.sparsity`).
+    #[serde(default = "default_sparsity_points")]
+    pub sparsity_points: usize,
+}
+
+fn default_sparsity_points() -> usize {
+    2048
 }
 
 fn default_mask_threshold_px() -> f32 {
@@ -177,6 +203,7 @@ impl NsffConfig {
             time_interp: TimeInterp::Splat,
             hard_fraction: default_hard_fraction(),
             static_batch: default_static_batch(),
+            sparsity_points: default_sparsity_points(),
         }
     }
 

@@ -12,7 +12,7 @@ use nerf::checkpoint::{Sections, bytes_f32, f32_bytes};
 use nerf::config::Preset;
 use nerf::model::scene_bounds;
 use nerf::renderer::{SceneBounds, tensor};
-use nerf_core::composite::composite;
+use nerf_core::composite::{RayLayout, composite};
 use nerf_core::metrics::psnr_from_mse;
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::optim::AdamParams;
@@ -314,11 +314,12 @@ impl NsffTrainer {
         Some(StepStats { loss: value, ..stats })
     }
 
-    /// Refreshes the occupancy grid: each refreshed point takes the static density or the
-    /// dynamic density at a random training time, whichever is larger. A few draws per update
-    /// keep cells that a moving object crosses only briefly from decaying away.
+    /// Refreshes the occupancy grid: each refreshed point takes the density the combined render
+    /// sees, with the dynamic field at a random training time (its own per point). One time draw per
+    /// refresh is enough: a cell the moving object crosses stays above the threshold for many
+    /// refreshes once seen (values decay by 5 % per refresh), and the refresh was a fifth of an
+    /// NSFF step's time with four draws.
     fn update_occupancy(&mut self, rng: &mut StdRng) {
-        const TIME_DRAWS: usize = 4;
         let Some(grid) = self.occupancy.as_mut() else {
             return;
         };
@@ -328,16 +329,8 @@ impl NsffTrainer {
         let step_size = self.cfg.base.fast.march.step;
         let mut density = |p: &[f32]| -> Vec<f32> {
             let n = p.len() / 3;
-            let mut best = vec![0.0f32; n];
-            let draws = if fields.dynamic.is_some() { TIME_DRAWS } else { 1 };
-            for _ in 0..draws {
-                let t: Vec<f32> = (0..n).map(|_| times[rng.random_range(0..times.len())]).collect();
-                let sigma = occupancy_density(&fields, p, &t, aabb, &plain).unwrap_or_default();
-                for (b, s) in best.iter_mut().zip(sigma) {
-                    *b = b.max(s);
-                }
-            }
-            best
+            let t: Vec<f32> = (0..n).map(|_| times[rng.random_range(0..times.len())]).collect();
+            occupancy_density(&fields, p, &t, aabb, &plain).unwrap_or_default()
         };
         let mut grid_rng = StdRng::seed_from_u64(self.step as u64);
         grid.update(self.step, step_size, &mut grid_rng, &mut density);
@@ -364,7 +357,7 @@ impl NsffTrainer {
         };
         if self.step < self.cfg.decay_steps {
             // Hard mining (NSFF): extra rays where the flow says something moves.
-            let moving: Vec<u32> = (0..w * h).filter(|&p| v.motion_masks[k][p as usize]).collect();
+            let moving = &v.moving_pixels[k];
             if !moving.is_empty() {
                 let extra = (n_uniform as f32 * self.cfg.hard_fraction).round() as usize;
                 pixels.extend((0..extra).map(|_| moving[rng.random_range(0..moving.len())]));
@@ -419,6 +412,21 @@ impl NsffTrainer {
             target.clone().slice([0..n_uniform, 0..3]),
         );
         let mut loss = mse_cb.clone();
+        if wts.hidden > 0.0 {
+            // Dynamic density that this frame's camera cannot see at this time (behind what the
+            // combined render shows) is constrained by nothing but this term: without it the
+            // dynamic field fills the space behind a moving object with whatever its MLP makes
+            // up, and novel views look into it.
+            let hidden = hidden_weights(
+                &host_values(&st.sigma),
+                &host_values(&dy.sigma),
+                &host_values(&st.blend),
+                &layout,
+            );
+            let hidden = tensor(hidden, 1, dev);
+            let depth = (st.blend.clone() * dy.sigma.clone() * hidden).sum() / r_n as f32;
+            loss = loss + depth * wts.hidden;
+        }
 
         // Dynamic-only render, also integrating the flowed points (for the optical-flow term).
         let x_next = x.clone() + dy.flow_next.clone();
@@ -512,6 +520,10 @@ impl NsffTrainer {
             loss = loss + spatial * wts.smooth;
         }
         loss = loss + entropy(st.blend) * wts.entropy;
+        if wts.sparsity > 0.0 {
+            let sparse = span("nsff_sparsity", || self.sparsity_loss(dynamic, v.times[k], rng));
+            loss = loss + sparse * wts.sparsity;
+        }
         if self.cfg.static_batch {
             let (rays_s, target_s) = self.still_pixels(n_uniform, rng);
             let still = span("nsff_static_batch", || {
@@ -524,6 +536,35 @@ impl NsffTrainer {
         // Ray and sample counts of the space-time batch (what the ray count adapts to).
         let m = mse_cb.inner().into_scalar::<f32>() as f64;
         Some((loss, stats(m, r_n, s_n)))
+    }
+
+    /// Mean blended dynamic optical depth per march step, b·σ_dy·δ, at `sparsity_points` random
+    /// points at time `time`: drawn from occupied cells when there is a grid (the rest of the box
+    /// is skipped by rendering anyway), else uniformly in the box.
+    fn sparsity_loss(&self, dynamic: &Field, time: f32, rng: &mut StdRng) -> Tensor<1> {
+        let [lo, hi] = self.bounds.aabb;
+        let mut pos = Vec::with_capacity(3 * self.cfg.sparsity_points);
+        for _ in 0..self.cfg.sparsity_points {
+            let mut p = [0.0f32; 3];
+            for _ in 0..8 {
+                p = std::array::from_fn(|a| lo[a] + (hi[a] - lo[a]) * rng.random::<f32>());
+                if self.occupancy.as_ref().is_none_or(|g| g.is_occupied(p)) {
+                    break;
+                }
+            }
+            pos.extend(p);
+        }
+        let n = pos.len() / 3;
+        let x = tensor(pos, 3, &self.device);
+        let dirs: Vec<f32> = [0.0, 0.0, 1.0].repeat(n);
+        let b = query_static(&self.fields.static_field, x.clone(), &dirs, self.bounds.aabb).blend;
+        let dy = query_dynamic(dynamic, x, time, &dirs, self.bounds.aabb, self.cfg.flow_scale);
+        let step = match &self.occupancy {
+            Some(_) => self.cfg.base.fast.march.step,
+            // Stratified samples: their mean spacing.
+            None => (self.bounds.far - self.bounds.near) / self.cfg.samples as f32,
+        };
+        (b * dy.sigma).mean() * step
     }
 
     /// `n` rays from random frames at pixels outside their motion masks, and their colours
@@ -618,6 +659,32 @@ impl NsffTrainer {
     }
 }
 
+/// Per sample, (1 − T)·δ: how far behind the combined render's visible surface it lies
+/// (T = transmittance before the sample through the blended density (1 − b)·σ_st + b·σ_dy),
+/// times its interval, so that Σ (1 − T)·δ·b·σ_dy is the ray's hidden dynamic optical depth.
+/// Host values (no gradient): `sigma_st`, `sigma_dy`, `blend` per sample.
+fn hidden_weights(sigma_st: &[f32], sigma_dy: &[f32], blend: &[f32], layout: &RayLayout) -> Vec<f32> {
+    let mut out = vec![0.0f32; sigma_st.len()];
+    for r in 0..layout.num_rays() {
+        let mut optical = 0.0f32;
+        for i in layout.offsets[r] as usize..layout.offsets[r + 1] as usize {
+            let (b, delta) = (blend[i], layout.deltas[i]);
+            out[i] = (1.0 - (-optical).exp()) * delta;
+            optical += ((1.0 - b) * sigma_st[i] + b * sigma_dy[i]).max(0.0) * delta;
+        }
+    }
+    out
+}
+
+/// A `[N, 1]` tensor's values on the host, without gradient.
+fn host_values(t: &Tensor<2>) -> Vec<f32> {
+    t.clone()
+        .inner()
+        .into_data()
+        .try_into_vec_as::<f32>()
+        .unwrap_or_default()
+}
+
 /// Colours (`[P * 3]`) of a view's pixels.
 fn pixel_colours(view: &nerf_data::View, pixels: &[u32]) -> Vec<f32> {
     pixels
@@ -683,5 +750,43 @@ impl nerf::train_loop::Trainable for NsffTrainer {
         self.occupancy.as_ref().map_or(String::new(), |o| {
             format!(", {:.1}% occupied", 100.0 * o.occupied_fraction())
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Arc;
+
+    /// The hidden weights against transmittance recomputed in f64 from its definition,
+    /// T_i = exp(−Σ_{j<i} σ_j δ_j) with σ = (1 − b)·σ_st + b·σ_dy.
+    #[test]
+    fn hidden_weights_follow_the_blended_transmittance() {
+        // Two rays: 3 samples, then 4 with an opaque static wall at the second sample.
+        let sigma_st = [0.0f32, 2.0, 0.5, 0.0, 1e4, 0.0, 0.0];
+        let sigma_dy = [1.0f32, 3.0, 0.0, 5.0, 0.0, 2.0, 7.0];
+        let blend = [1.0f32, 0.25, 0.5, 0.9, 0.0, 1.0, 0.5];
+        let layout = RayLayout {
+            offsets: Arc::new(vec![0, 3, 7]),
+            deltas: Arc::new(vec![0.1, 0.2, 0.3, 0.05, 0.05, 0.1, 0.1]),
+        };
+        let got = hidden_weights(&sigma_st, &sigma_dy, &blend, &layout);
+        for r in 0..2 {
+            let mut sum = 0.0f64;
+            for i in layout.offsets[r] as usize..layout.offsets[r + 1] as usize {
+                let want = (1.0 - (-sum).exp()) * layout.deltas[i] as f64;
+                assert!(
+                    (got[i] as f64 - want).abs() < 1e-6,
+                    "sample {i}: {} vs {want}",
+                    got[i]
+                );
+                let (b, d) = (blend[i] as f64, layout.deltas[i] as f64);
+                sum += ((1.0 - b) * sigma_st[i] as f64 + b * sigma_dy[i] as f64) * d;
+            }
+        }
+        // The first sample of a ray is never hidden; behind the wall everything is.
+        assert_eq!(got[0], 0.0);
+        assert_eq!(got[3], 0.0);
+        assert!((got[5] - 0.1).abs() < 1e-6 && (got[6] - 0.1).abs() < 1e-6);
     }
 }

@@ -24,6 +24,8 @@ pub struct Video {
     pub has_motion: bool,
     /// Per frame, its motion mask (`[H*W]` row-major, true = probably moving).
     pub motion_masks: Vec<Vec<bool>>,
+    /// Per frame, the pixels inside its motion mask (what hard mining draws from).
+    pub moving_pixels: Vec<Vec<u32>>,
 }
 
 impl Video {
@@ -143,12 +145,18 @@ pub fn prepare(dataset: Dataset, cache_dir: &Path, thresholds_px: (f32, f32), qu
     }
     let cameras: Vec<nerf_data::Camera> = frames.iter().map(|&f| dataset.views[f].camera).collect();
     let report = nerf_data::flow::independent_motion(&cameras, &flow_fwd, motion_threshold_px);
-    let motion_masks = nerf_data::flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, mask_threshold_px)
-        .into_iter()
-        .map(|m| m.into_iter().map(|v| v > 0.5).collect())
+    let motion_masks: Vec<Vec<bool>> =
+        nerf_data::flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, mask_threshold_px)
+            .into_iter()
+            .map(|m| m.into_iter().map(|v| v > 0.5).collect())
+            .collect();
+    let moving_pixels = motion_masks
+        .iter()
+        .map(|m| (0..m.len() as u32).filter(|&p| m[p as usize]).collect())
         .collect();
     Ok(Video {
         motion_masks,
+        moving_pixels,
         dataset,
         frames,
         times,

@@ -1,0 +1,247 @@
+//! End-to-end checks of the `nsff` binary on small videos from our generator: train → eval →
+//! render cycle scored independently from the PNGs, the static-video skip path, kill-and-resume.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use nerf_data::synth::{Preset, SynthConfig};
+
+fn nsff() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_nsff"))
+}
+
+fn run(cmd: &mut Command) -> Output {
+    let out = cmd.output().expect("spawn");
+    assert!(
+        out.status.success(),
+        "{:?} failed\nstdout:\n{}\nstderr:\n{}",
+        cmd,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("nsff-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// The value after `mean_psnr` on the last line of stdout.
+fn mean_psnr(out: &Output) -> f64 {
+    let text = String::from_utf8_lossy(&out.stdout);
+    let last = text.lines().last().unwrap_or_default();
+    last.strip_prefix("mean_psnr ")
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("last line: {last}"))
+}
+
+/// A video from our generator (`preset`: dynamic or static_video), `w`×`h`, `frames` frames,
+/// 4 held-out (camera, time) pairs.
+fn video(dir: &Path, preset: Preset, (w, h): (u32, u32), frames: usize) -> PathBuf {
+    let data = dir.join(preset.as_str());
+    let cfg = SynthConfig::new(preset).with_size(w, h).with_views(frames, 4);
+    nerf_data::synth::generate(&cfg, &data).unwrap();
+    data
+}
+
+/// PSNR of rendered PNGs (`renders/0000.png`, … in file order) against the video's test PNGs
+/// composited on white, computed here independently of the program's own evaluation.
+fn score_pngs(renders: &Path, data: &Path) -> f64 {
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(data.join("transforms_test.json")).unwrap()).unwrap();
+    let frames = json["frames"].as_array().unwrap();
+    let mut total = 0.0;
+    for (k, f) in frames.iter().enumerate() {
+        let file = f["file_path"].as_str().unwrap().trim_start_matches("./");
+        let gt = image::open(data.join(format!("{file}.png")))
+            .unwrap()
+            .to_rgba32f();
+        let ours = image::open(renders.join(format!("{k:04}.png")))
+            .unwrap()
+            .to_rgb8();
+        assert_eq!(gt.dimensions(), ours.dimensions());
+        let mut se = 0.0f64;
+        for (g, o) in gt.pixels().zip(ours.pixels()) {
+            let a = g[3];
+            for c in 0..3 {
+                let want = g[c] * a + (1.0 - a);
+                se += (want as f64 - o[c] as f64 / 255.0).powi(2);
+            }
+        }
+        let mse = se / (3 * gt.width() * gt.height()) as f64;
+        total += -10.0 * mse.log10();
+    }
+    total / frames.len() as f64
+}
+
+#[test]
+fn train_eval_and_render_cameras_agree() {
+    let dir = temp("cycle");
+    let data = video(&dir, Preset::Dynamic, (32, 24), 6);
+    let run_dir = dir.join("run");
+    let out = run(nsff().arg("train").arg(&data).arg("--out").arg(&run_dir).args([
+        "--steps",
+        "60",
+        "--set",
+        "base.checkpoint_every=30",
+    ]));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("dynamic field on"), "{stderr}");
+    let after_train = mean_psnr(&out);
+    for f in [
+        "checkpoint.bin",
+        "psnr.png",
+        "render/path.gif",
+        "eval.json",
+        "scene_flow.json",
+    ] {
+        assert!(run_dir.join(f).exists(), "{f} missing");
+    }
+    let eval = run(nsff().arg("eval").arg(&run_dir));
+    let evaluated = mean_psnr(&eval);
+    assert!(
+        (evaluated - after_train).abs() < 1e-6,
+        "eval {evaluated} vs end of training {after_train}"
+    );
+    // The generator's scenes carry their motion: the scene-flow error is reported.
+    let text = String::from_utf8_lossy(&eval.stdout);
+    assert!(text.contains("scene flow on moving objects: EPE"), "{text}");
+    assert!(evaluated > 12.0, "60 steps should learn something: {evaluated}");
+
+    let renders = dir.join("cams");
+    let test_json = data.join("transforms_test.json");
+    run(nsff()
+        .arg("render")
+        .arg(&run_dir)
+        .arg("--cameras")
+        .arg(&test_json)
+        .arg("--out")
+        .arg(&renders));
+    let independent = score_pngs(&renders, &data);
+    eprintln!("nsff eval {evaluated:.4} dB, independent PNG score {independent:.4} dB");
+    assert!(
+        (independent - evaluated).abs() < 0.05,
+        "{independent} vs {evaluated}"
+    );
+    // One PNG per (camera, time) pair in file order, with its visualisations.
+    let names: Vec<String> =
+        serde_json::from_slice(&std::fs::read(renders.join("frames.json")).unwrap()).unwrap();
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&test_json).unwrap()).unwrap();
+    let want: Vec<&str> = json["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["file_path"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, want);
+    for sub in ["", "depth", "dynamic", "flow"] {
+        for k in 0..want.len() {
+            assert!(
+                renders.join(sub).join(format!("{k:04}.png")).exists(),
+                "{sub}/{k:04}.png"
+            );
+        }
+    }
+    assert!(renders.join("cameras.gif").exists());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn static_video_switches_the_dynamic_field_off() {
+    let dir = temp("static");
+    // The motion decision needs the built-in flow at the generator's own video settings: at
+    // 32×24, or with 6 frames on the same camera arc (large steps), the flow's errors read as
+    // a few percent of moving pixels.
+    let data = video(&dir, Preset::StaticVideo, (128, 96), 24);
+    let run_dir = dir.join("run");
+    let out =
+        run(nsff()
+            .arg("train")
+            .arg(&data)
+            .arg("--out")
+            .arg(&run_dir)
+            .args(["--steps", "20", "--no-render"]));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("dynamic field off (static scene)"), "{stderr}");
+    let state = std::fs::read(run_dir.join("checkpoint.bin")).unwrap();
+    let text = String::from_utf8_lossy(&state);
+    assert!(
+        text.contains("\"dynamic\": false"),
+        "checkpoint state should record no dynamic field"
+    );
+    // Forcing it on is honoured.
+    let forced = dir.join("forced");
+    let out = run(nsff().arg("train").arg(&data).arg("--out").arg(&forced).args([
+        "--steps",
+        "2",
+        "--no-render",
+        "--dynamic",
+        "on",
+    ]));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("dynamic field on"));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn killed_training_resumes_to_the_same_result() {
+    let dir = temp("resume");
+    let data = video(&dir, Preset::Dynamic, (32, 24), 6);
+    let args = [
+        "--steps",
+        "100",
+        "--set",
+        "base.checkpoint_every=10",
+        "--no-render",
+        "--seed",
+        "3",
+    ];
+    let reference = dir.join("reference");
+    run(nsff()
+        .arg("train")
+        .arg(&data)
+        .arg("--out")
+        .arg(&reference)
+        .args(args));
+    let want = mean_psnr(&run(nsff().arg("eval").arg(&reference)));
+    // Killed midway (SIGKILL), then resumed.
+    let killed = dir.join("killed");
+    let mut child = nsff()
+        .arg("train")
+        .arg(&data)
+        .arg("--out")
+        .arg(&killed)
+        .args(args)
+        .spawn()
+        .unwrap();
+    let metrics = killed.join("metrics.jsonl");
+    let start = std::time::Instant::now();
+    loop {
+        let steps = std::fs::read_to_string(&metrics)
+            .map(|t| t.lines().count())
+            .unwrap_or(0);
+        if steps >= 40 && killed.join("checkpoint.bin").exists() {
+            break;
+        }
+        assert!(start.elapsed().as_secs() < 300, "training did not progress");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.kill().unwrap(); // SIGKILL on Unix
+    child.wait().unwrap();
+    let out = run(nsff()
+        .arg("train")
+        .arg(&data)
+        .arg("--out")
+        .arg(&killed)
+        .arg("--resume")
+        .arg("--no-render"));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("resuming"), "{stderr}");
+    assert!(stderr.contains("trained 100 steps"), "{stderr}");
+    let got = mean_psnr(&run(nsff().arg("eval").arg(&killed)));
+    eprintln!("uninterrupted {want:.3} dB, killed and resumed {got:.3} dB");
+    assert!((got - want).abs() < 0.5, "{got} vs {want}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
