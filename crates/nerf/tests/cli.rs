@@ -2,38 +2,18 @@
 //! train → eval → render cycle scored independently from the PNGs, kill-and-resume, bad input.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
+
+#[path = "../../../tests/support/cli.rs"]
+mod support;
+use support::{kill_and_resume, mean_psnr, run, score_pngs};
 
 fn nerf() -> Command {
     Command::new(env!("CARGO_BIN_EXE_nerf"))
 }
 
-fn run(cmd: &mut Command) -> Output {
-    let out = cmd.output().expect("spawn nerf");
-    assert!(
-        out.status.success(),
-        "{:?} failed\nstdout:\n{}\nstderr:\n{}",
-        cmd,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
 fn temp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("nerf-cli-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-/// The value after `mean_psnr` on the last line of stdout.
-fn mean_psnr(out: &Output) -> f64 {
-    let text = String::from_utf8_lossy(&out.stdout);
-    let last = text.lines().last().unwrap_or_default();
-    last.strip_prefix("mean_psnr ")
-        .and_then(|v| v.trim().parse().ok())
-        .unwrap_or_else(|| panic!("last line: {last}"))
+    support::temp("nerf-cli", name)
 }
 
 /// A small synthetic object scene (32×32, 30 views, 4 test views).
@@ -97,37 +77,6 @@ fn colmap2poses_reproduces_the_shipped_poses_bounds() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
-/// PSNR of rendered PNGs against the scene's test PNGs composited on white, computed here
-/// independently of the program's own evaluation.
-fn score_pngs(renders: &Path, data: &Path) -> f64 {
-    let json: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(data.join("transforms_test.json")).unwrap()).unwrap();
-    let frames = json["frames"].as_array().unwrap();
-    let mut total = 0.0;
-    for (k, f) in frames.iter().enumerate() {
-        let gt_path = data.join(format!(
-            "{}.png",
-            f["file_path"].as_str().unwrap().trim_start_matches("./")
-        ));
-        let gt = image::open(&gt_path).unwrap().to_rgba32f();
-        let ours = image::open(renders.join(format!("{k:04}.png")))
-            .unwrap()
-            .to_rgb8();
-        assert_eq!(gt.dimensions(), ours.dimensions());
-        let mut se = 0.0f64;
-        for (g, o) in gt.pixels().zip(ours.pixels()) {
-            let a = g[3];
-            for c in 0..3 {
-                let want = g[c] * a + (1.0 - a);
-                se += (want as f64 - o[c] as f64 / 255.0).powi(2);
-            }
-        }
-        let mse = se / (3 * gt.width() * gt.height()) as f64;
-        total += -10.0 * mse.log10();
-    }
-    total / frames.len() as f64
-}
-
 #[test]
 fn train_eval_and_render_cameras_agree() {
     let dir = temp("cycle");
@@ -179,50 +128,8 @@ fn killed_training_resumes_to_the_same_result() {
         "--seed",
         "3",
     ];
-    // Uninterrupted reference.
-    let reference = dir.join("reference");
-    run(nerf()
-        .arg("train")
-        .arg(&data)
-        .arg("--out")
-        .arg(&reference)
-        .args(args));
-    let want = mean_psnr(&run(nerf().arg("eval").arg(&reference)));
-    // Killed midway (SIGKILL), then resumed.
-    let killed = dir.join("killed");
-    let mut child = nerf()
-        .arg("train")
-        .arg(&data)
-        .arg("--out")
-        .arg(&killed)
-        .args(args)
-        .spawn()
-        .unwrap();
-    let metrics = killed.join("metrics.jsonl");
-    let start = std::time::Instant::now();
-    loop {
-        let steps = std::fs::read_to_string(&metrics)
-            .map(|t| t.lines().count())
-            .unwrap_or(0);
-        if steps >= 100 && killed.join("checkpoint.bin").exists() {
-            break;
-        }
-        assert!(start.elapsed().as_secs() < 120, "training did not progress");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    child.kill().unwrap(); // SIGKILL on Unix
-    child.wait().unwrap();
-    let out = run(nerf()
-        .arg("train")
-        .arg(&data)
-        .arg("--out")
-        .arg(&killed)
-        .arg("--resume")
-        .arg("--no-render"));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let (want, got, stderr) = kill_and_resume(env!("CARGO_BIN_EXE_nerf"), &data, &dir, &args, 100);
     assert!(stderr.contains("resuming"), "{stderr}");
-    let got = mean_psnr(&run(nerf().arg("eval").arg(&killed)));
-    eprintln!("uninterrupted {want:.3} dB, killed and resumed {got:.3} dB");
     assert!((got - want).abs() < 0.5, "{got} vs {want}");
     std::fs::remove_dir_all(dir).unwrap();
 }

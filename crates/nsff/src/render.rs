@@ -104,12 +104,13 @@ pub fn render_direct(
         &dirs,
         bounds.aabb,
     );
-    let (sigma_st, rgb_st, blend) = (host(st.sigma), host(st.rgb), host(st.blend));
+    let (sigma_st, rgb_st, mut blend) = (host(st.sigma), host(st.rgb), host(st.blend));
     let mut sigma_dy = vec![0.0f32; s_n];
     let mut rgb_dy = vec![0.0f32; 3 * s_n];
     let mut flow_mag = vec![0.0f32; s_n];
     let mut evaluated = 0usize;
     if let Some(dynamic) = &fields.dynamic {
+        // b = b_s·g ≤ b_s: where b_s says static, the dynamic field cannot contribute.
         let keep: Vec<usize> = (0..s_n).filter(|&i| blend[i] >= cfg.blend_skip).collect();
         evaluated = keep.len();
         if !keep.is_empty() {
@@ -129,8 +130,9 @@ pub fn render_direct(
                 bounds.aabb,
                 cfg.flow_scale,
             );
-            let (s, c, f) = (host(dy.sigma), host(dy.rgb), host(dy.flow_next));
+            let (s, c, f, g) = (host(dy.sigma), host(dy.rgb), host(dy.flow_next), host(dy.gate));
             for (k, &i) in keep.iter().enumerate() {
+                blend[i] *= g[k];
                 sigma_dy[i] = s[k];
                 rgb_dy[3 * i..3 * i + 3].copy_from_slice(&c[3 * k..3 * k + 3]);
                 flow_mag[i] = (f[3 * k].powi(2) + f[3 * k + 1].powi(2) + f[3 * k + 2].powi(2)).sqrt();
@@ -285,7 +287,9 @@ pub fn render_splat(
                 *sg = 0.0;
             }
         }
-        per_time.push((sigma_dy, host(dy.rgb), uv));
+        // This time's blend, b_s·g.
+        let b: Vec<f32> = blend.iter().zip(host(dy.gate)).map(|(b, g)| b * g).collect();
+        per_time.push((sigma_dy, host(dy.rgb), uv, b));
     }
     let bg = dataset.background.unwrap_or([0.0; 3]);
     let mut rgb = vec![0.0f32; 3 * n_rays];
@@ -296,7 +300,7 @@ pub fn render_splat(
     let mut splat = vec![[0.0f32; 5]; n_rays];
     let mut layers = [vec![[0.0f32; 4]; n_rays], vec![[0.0f32; 4]; n_rays]];
     for k in 0..s {
-        for (m, (sigma_dy, rgb_dy, uv)) in per_time.iter().enumerate() {
+        for (m, (sigma_dy, rgb_dy, uv, blend)) in per_time.iter().enumerate() {
             splat.iter_mut().for_each(|v| *v = [0.0; 5]);
             for ray in 0..n_rays {
                 let sidx = layout.offsets[ray] as usize + k;
@@ -332,15 +336,18 @@ pub fn render_splat(
         }
         for ray in 0..n_rays {
             let sidx = layout.offsets[ray] as usize + k;
-            let a_st = (1.0 - (-sigma_st[sidx] * layout.deltas[sidx]).exp()) * (1.0 - blend[sidx]);
+            // The static share at each neighbouring time: 1 − b_s·g of that time.
+            let alpha_st = 1.0 - (-sigma_st[sidx] * layout.deltas[sidx]).exp();
+            let a1 = alpha_st * (1.0 - per_time[0].3[sidx]);
+            let a2 = alpha_st * (1.0 - per_time[1].3[sidx]);
             let (l1, l2) = (layers[0][ray], layers[1][ray]);
             let tr = trans[ray];
             for c in 0..3 {
-                let st_c = a_st * rgb_st[3 * sidx + c];
-                rgb[3 * ray + c] += tr * ((1.0 - r) * (l1[c] + st_c) + r * (l2[c] + st_c));
+                let st_c = rgb_st[3 * sidx + c];
+                rgb[3 * ray + c] += tr * ((1.0 - r) * (l1[c] + a1 * st_c) + r * (l2[c] + a2 * st_c));
             }
             let alpha =
-                (1.0 - r) * (1.0 - (1.0 - l1[3]) * (1.0 - a_st)) + r * (1.0 - (1.0 - l2[3]) * (1.0 - a_st));
+                (1.0 - r) * (1.0 - (1.0 - l1[3]) * (1.0 - a1)) + r * (1.0 - (1.0 - l2[3]) * (1.0 - a2));
             acc[ray] += tr * alpha;
             depth[ray] += tr * alpha * samples.t[sidx];
             trans[ray] = tr * (1.0 - alpha).max(0.0);

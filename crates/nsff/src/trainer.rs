@@ -397,13 +397,14 @@ impl NsffTrainer {
             flow_scale,
         );
 
-        // Combined render: the static and dynamic components blended per sample.
+        // Combined render: the static and dynamic components blended per sample by b = b_s·g.
+        let blend = st.blend.clone() * dy.gate.clone();
         let sigma2 = Tensor::cat(vec![st.sigma.clone(), dy.sigma.clone()], 1);
         let feats2 = Tensor::cat(
             vec![st.rgb.clone(), t_col.clone(), dy.rgb.clone(), t_col.clone()],
             1,
         );
-        let blend2 = Tensor::cat(vec![st.blend.clone().neg() + 1.0, st.blend.clone()], 1);
+        let blend2 = Tensor::cat(vec![blend.clone().neg() + 1.0, blend.clone()], 1);
         let cb = composite(sigma2, feats2, Some(blend2), &layout, 0.0);
         let rgb_cb = with_bg(cb.clone().slice([0..r_n, 0..3]), cb.slice([0..r_n, 4..5]));
         // Over the uniformly drawn rays only, as NSFF: the mined ones would bias the blend.
@@ -416,15 +417,21 @@ impl NsffTrainer {
             // Dynamic density that this frame's camera cannot see at this time (behind what the
             // combined render shows) is constrained by nothing but this term: without it the
             // dynamic field fills the space behind a moving object with whatever its MLP makes
-            // up, and novel views look into it.
+            // up, and novel views look into it. The penalty reaches the density and the time
+            // gate, not b_s: b_s is time-independent, and points hidden at this time are the
+            // object's visible surface at others.
             let hidden = hidden_weights(
                 &host_values(&st.sigma),
                 &host_values(&dy.sigma),
-                &host_values(&st.blend),
+                &host_values(&blend),
                 &layout,
             );
-            let hidden = tensor(hidden, 1, dev);
-            let depth = (st.blend.clone() * dy.sigma.clone() * hidden).sum() / r_n as f32;
+            let fixed = host_values(&st.blend)
+                .iter()
+                .zip(hidden)
+                .map(|(b, h)| b * h)
+                .collect();
+            let depth = (dy.gate.clone() * dy.sigma.clone() * tensor(fixed, 1, dev)).sum() / r_n as f32;
             loss = loss + depth * wts.hidden;
         }
 
@@ -519,7 +526,7 @@ impl NsffTrainer {
                 + (fp_e.clone().select(0, ia) - fp_e.select(0, ib)).abs().mean();
             loss = loss + spatial * wts.smooth;
         }
-        loss = loss + entropy(st.blend) * wts.entropy;
+        loss = loss + entropy(blend) * wts.entropy;
         if wts.sparsity > 0.0 {
             let sparse = span("nsff_sparsity", || self.sparsity_loss(dynamic, v.times[k], rng));
             loss = loss + sparse * wts.sparsity;
@@ -564,7 +571,7 @@ impl NsffTrainer {
             // Stratified samples: their mean spacing.
             None => (self.bounds.far - self.bounds.near) / self.cfg.samples as f32,
         };
-        (b * dy.sigma).mean() * step
+        (b * dy.gate * dy.sigma).mean() * step
     }
 
     /// `n` rays from random frames at pixels outside their motion masks, and their colours
@@ -659,17 +666,21 @@ impl NsffTrainer {
     }
 }
 
-/// Per sample, (1 − T)·δ: how far behind the combined render's visible surface it lies
-/// (T = transmittance before the sample through the blended density (1 − b)·σ_st + b·σ_dy),
-/// times its interval, so that Σ (1 − T)·δ·b·σ_dy is the ray's hidden dynamic optical depth.
-/// Host values (no gradient): `sigma_st`, `sigma_dy`, `blend` per sample.
+/// Transmittance below which a sample counts as hidden. The visible surface itself spans a
+/// few samples over which T falls from 1 to 0; weighting by (1 − T) penalised its back half.
+const HIDDEN_BELOW_T: f32 = 0.05;
+
+/// Per sample, δ·max(0, 1 − T/T_h): its interval where it lies behind the combined render's
+/// visible surface (T = transmittance before the sample through the blended density
+/// (1 − b)·σ_st + b·σ_dy, T_h = [`HIDDEN_BELOW_T`]), so that Σ weight·b·σ_dy is the ray's hidden
+/// dynamic optical depth. Host values (no gradient): `sigma_st`, `sigma_dy`, `blend` per sample.
 fn hidden_weights(sigma_st: &[f32], sigma_dy: &[f32], blend: &[f32], layout: &RayLayout) -> Vec<f32> {
     let mut out = vec![0.0f32; sigma_st.len()];
     for r in 0..layout.num_rays() {
         let mut optical = 0.0f32;
         for i in layout.offsets[r] as usize..layout.offsets[r + 1] as usize {
             let (b, delta) = (blend[i], layout.deltas[i]);
-            out[i] = (1.0 - (-optical).exp()) * delta;
+            out[i] = (1.0 - (-optical).exp() / HIDDEN_BELOW_T).max(0.0) * delta;
             optical += ((1.0 - b) * sigma_st[i] + b * sigma_dy[i]).max(0.0) * delta;
         }
     }
@@ -762,9 +773,10 @@ mod tests {
     /// T_i = exp(−Σ_{j<i} σ_j δ_j) with σ = (1 − b)·σ_st + b·σ_dy.
     #[test]
     fn hidden_weights_follow_the_blended_transmittance() {
-        // Two rays: 3 samples, then 4 with an opaque static wall at the second sample.
+        // Two rays: 3 samples, the last partly hidden (T ≈ 0.03), then 4 with an opaque static
+        // wall at the second sample.
         let sigma_st = [0.0f32, 2.0, 0.5, 0.0, 1e4, 0.0, 0.0];
-        let sigma_dy = [1.0f32, 3.0, 0.0, 5.0, 0.0, 2.0, 7.0];
+        let sigma_dy = [1.0f32, 60.0, 0.0, 5.0, 0.0, 2.0, 7.0];
         let blend = [1.0f32, 0.25, 0.5, 0.9, 0.0, 1.0, 0.5];
         let layout = RayLayout {
             offsets: Arc::new(vec![0, 3, 7]),
@@ -774,19 +786,20 @@ mod tests {
         for r in 0..2 {
             let mut sum = 0.0f64;
             for i in layout.offsets[r] as usize..layout.offsets[r + 1] as usize {
-                let want = (1.0 - (-sum).exp()) * layout.deltas[i] as f64;
+                let (b, d) = (blend[i] as f64, layout.deltas[i] as f64);
+                let want = (1.0 - (-sum).exp() / HIDDEN_BELOW_T as f64).max(0.0) * d;
                 assert!(
                     (got[i] as f64 - want).abs() < 1e-6,
                     "sample {i}: {} vs {want}",
                     got[i]
                 );
-                let (b, d) = (blend[i] as f64, layout.deltas[i] as f64);
                 sum += ((1.0 - b) * sigma_st[i] as f64 + b * sigma_dy[i] as f64) * d;
             }
         }
         // The first sample of a ray is never hidden; behind the wall everything is.
         assert_eq!(got[0], 0.0);
         assert_eq!(got[3], 0.0);
+        assert!(got[1] == 0.0 && got[2] > 0.0 && got[2] < 0.3, "{got:?}");
         assert!((got[5] - 0.1).abs() < 1e-6 && (got[6] - 0.1).abs() < 1e-6);
     }
 }

@@ -2,40 +2,20 @@
 //! render cycle scored independently from the PNGs, the static-video skip path, kill-and-resume.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 use nerf_data::synth::{Preset, SynthConfig};
+
+#[path = "../../../tests/support/cli.rs"]
+mod support;
+use support::{kill_and_resume, mean_psnr, run, score_pngs};
 
 fn nsff() -> Command {
     Command::new(env!("CARGO_BIN_EXE_nsff"))
 }
 
-fn run(cmd: &mut Command) -> Output {
-    let out = cmd.output().expect("spawn");
-    assert!(
-        out.status.success(),
-        "{:?} failed\nstdout:\n{}\nstderr:\n{}",
-        cmd,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
 fn temp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("nsff-cli-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-/// The value after `mean_psnr` on the last line of stdout.
-fn mean_psnr(out: &Output) -> f64 {
-    let text = String::from_utf8_lossy(&out.stdout);
-    let last = text.lines().last().unwrap_or_default();
-    last.strip_prefix("mean_psnr ")
-        .and_then(|v| v.trim().parse().ok())
-        .unwrap_or_else(|| panic!("last line: {last}"))
+    support::temp("nsff-cli", name)
 }
 
 /// A video from our generator (`preset`: dynamic or static_video), `w`×`h`, `frames` frames,
@@ -45,36 +25,6 @@ fn video(dir: &Path, preset: Preset, (w, h): (u32, u32), frames: usize) -> PathB
     let cfg = SynthConfig::new(preset).with_size(w, h).with_views(frames, 4);
     nerf_data::synth::generate(&cfg, &data).unwrap();
     data
-}
-
-/// PSNR of rendered PNGs (`renders/0000.png`, … in file order) against the video's test PNGs
-/// composited on white, computed here independently of the program's own evaluation.
-fn score_pngs(renders: &Path, data: &Path) -> f64 {
-    let json: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(data.join("transforms_test.json")).unwrap()).unwrap();
-    let frames = json["frames"].as_array().unwrap();
-    let mut total = 0.0;
-    for (k, f) in frames.iter().enumerate() {
-        let file = f["file_path"].as_str().unwrap().trim_start_matches("./");
-        let gt = image::open(data.join(format!("{file}.png")))
-            .unwrap()
-            .to_rgba32f();
-        let ours = image::open(renders.join(format!("{k:04}.png")))
-            .unwrap()
-            .to_rgb8();
-        assert_eq!(gt.dimensions(), ours.dimensions());
-        let mut se = 0.0f64;
-        for (g, o) in gt.pixels().zip(ours.pixels()) {
-            let a = g[3];
-            for c in 0..3 {
-                let want = g[c] * a + (1.0 - a);
-                se += (want as f64 - o[c] as f64 / 255.0).powi(2);
-            }
-        }
-        let mse = se / (3 * gt.width() * gt.height()) as f64;
-        total += -10.0 * mse.log10();
-    }
-    total / frames.len() as f64
 }
 
 #[test]
@@ -198,50 +148,9 @@ fn killed_training_resumes_to_the_same_result() {
         "--seed",
         "3",
     ];
-    let reference = dir.join("reference");
-    run(nsff()
-        .arg("train")
-        .arg(&data)
-        .arg("--out")
-        .arg(&reference)
-        .args(args));
-    let want = mean_psnr(&run(nsff().arg("eval").arg(&reference)));
-    // Killed midway (SIGKILL), then resumed.
-    let killed = dir.join("killed");
-    let mut child = nsff()
-        .arg("train")
-        .arg(&data)
-        .arg("--out")
-        .arg(&killed)
-        .args(args)
-        .spawn()
-        .unwrap();
-    let metrics = killed.join("metrics.jsonl");
-    let start = std::time::Instant::now();
-    loop {
-        let steps = std::fs::read_to_string(&metrics)
-            .map(|t| t.lines().count())
-            .unwrap_or(0);
-        if steps >= 40 && killed.join("checkpoint.bin").exists() {
-            break;
-        }
-        assert!(start.elapsed().as_secs() < 300, "training did not progress");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    child.kill().unwrap(); // SIGKILL on Unix
-    child.wait().unwrap();
-    let out = run(nsff()
-        .arg("train")
-        .arg(&data)
-        .arg("--out")
-        .arg(&killed)
-        .arg("--resume")
-        .arg("--no-render"));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let (want, got, stderr) = kill_and_resume(env!("CARGO_BIN_EXE_nsff"), &data, &dir, &args, 40);
     assert!(stderr.contains("resuming"), "{stderr}");
     assert!(stderr.contains("trained 100 steps"), "{stderr}");
-    let got = mean_psnr(&run(nsff().arg("eval").arg(&killed)));
-    eprintln!("uninterrupted {want:.3} dB, killed and resumed {got:.3} dB");
     assert!((got - want).abs() < 0.5, "{got} vs {want}");
     std::fs::remove_dir_all(dir).unwrap();
 }
