@@ -78,7 +78,10 @@ pub enum TimeInterp {
     /// NSFF: render the two neighbouring frames' samples, move them along the scene flow and
     /// splat them into the target camera.
     Splat,
-    /// Query the space-time field at the in-between time directly.
+    /// Query the space-time field at the in-between time directly (the default: the hash
+    /// grid's time cells end on frames, so this interpolates the two neighbours' features; on
+    /// dyn0 it is 2.7–3.5 dB better than splatting on the same checkpoints and 6× faster,
+    /// BENCHMARKS.md §4).
     Direct,
 }
 
@@ -108,8 +111,14 @@ pub struct NsffConfig {
     /// Scene flow is tanh(raw) × flow_scale (scene units per frame; NDC for forward-facing).
     pub flow_scale: f32,
     pub weights: LossWeights,
-    /// The optical-flow and depth weights divide by 10 every `decay_steps` steps.
+    /// The optical-flow and depth weights divide by 10 every `decay_steps` steps (NSFF's
+    /// schedule) or every `decay_fraction` of the run's progress, whichever comes first.
     pub decay_steps: usize,
+    /// Without it a `--time-budget` run (a few thousand steps) never leaves the first phase:
+    /// on dyn0 the optical-flow term at full weight holds the train PSNR near 30 dB, and the
+    /// renders between frames lose 3 dB (BENCHMARKS.md §4, E8 against E9).
+    #[serde(default = "default_decay_fraction")]
+    pub decay_fraction: f64,
     pub dynamic: DynamicMode,
     /// Independent-motion threshold (pixels of epipolar error), for `DynamicMode::Auto`.
     pub motion_threshold_px: f32,
@@ -124,8 +133,9 @@ pub struct NsffConfig {
     /// At render time, samples whose blend weight is below this skip the dynamic field.
     pub blend_skip: f32,
     pub time_interp: TimeInterp,
-    /// NSFF's hard mining: while the decaying terms are at full weight, each step adds this
-    /// fraction of its rays again, drawn from the frame's motion mask (NSFF: 512 on 1024).
+    /// NSFF's hard mining: for the first `decay_steps` steps (NSFF's first decay period; not
+    /// shortened by `decay_fraction`), each step adds this fraction of its rays again, drawn
+    /// from the frame's motion mask (NSFF: 512 on 1024).
     #[serde(default = "default_hard_fraction")]
     pub hard_fraction: f32,
     /// Each step also renders the static field alone on as many rays again, drawn from all
@@ -156,6 +166,11 @@ fn default_static_batch() -> bool {
 
 fn default_min_rays() -> usize {
     64
+}
+
+/// Half the run: NSFF's 25k-step period on our 50k default steps.
+fn default_decay_fraction() -> f64 {
+    0.5
 }
 
 fn default_blend_init_logit() -> f32 {
@@ -195,12 +210,13 @@ impl NsffConfig {
             flow_scale: 0.25,
             weights: LossWeights::default(),
             decay_steps: 25_000,
+            decay_fraction: default_decay_fraction(),
             dynamic: DynamicMode::Auto,
             motion_threshold_px: 1.0,
             mask_threshold_px: default_mask_threshold_px(),
             blend_init_logit: default_blend_init_logit(),
             blend_skip: 1e-2,
-            time_interp: TimeInterp::Splat,
+            time_interp: TimeInterp::Direct,
             hard_fraction: default_hard_fraction(),
             static_batch: default_static_batch(),
             sparsity_points: default_sparsity_points(),
@@ -231,8 +247,30 @@ impl NsffConfig {
         }
     }
 
-    /// Weight multiplier of the decaying terms at `step`.
-    pub fn decay(&self, step: usize) -> f64 {
-        0.1f64.powi((step / self.decay_steps.max(1)) as i32)
+    /// Weight multiplier of the decaying terms at `step` and training `progress` in [0, 1].
+    pub fn decay(&self, step: usize, progress: f64) -> f64 {
+        let by_steps = step / self.decay_steps.max(1);
+        let by_progress = (progress / self.decay_fraction.max(1e-9)).floor() as usize;
+        0.1f64.powi(by_steps.max(by_progress).min(1000) as i32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decay_follows_steps_or_budget_whichever_is_first() {
+        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
+        cfg.decay_steps = 1000;
+        cfg.decay_fraction = 0.5;
+        // Step schedule alone (a long run): 10x per 1000 steps.
+        assert_eq!(cfg.decay(999, 0.01), 1.0);
+        assert!((cfg.decay(1000, 0.02) - 0.1).abs() < 1e-12);
+        assert!((cfg.decay(2500, 0.05) - 0.01).abs() < 1e-12);
+        // A short, budgeted run: 10x at half of it.
+        assert_eq!(cfg.decay(10, 0.49), 1.0);
+        assert!((cfg.decay(10, 0.5) - 0.1).abs() < 1e-12);
+        assert!((cfg.decay(10, 1.0) - 0.01).abs() < 1e-12);
     }
 }

@@ -108,6 +108,15 @@ pub struct SceneFlowError {
     pub epe: f64,
     /// Mean true displacement: the error of predicting no motion.
     pub zero_motion_epe: f64,
+    /// Mean length of the predicted flow (a field that learned no motion reads near 0).
+    pub predicted_length: f64,
+    /// Mean cosine between predicted and true flow (1: right directions, 0: unrelated).
+    pub cosine: f64,
+    /// The same flow seen by the next frame's camera: mean pixel distance between where the
+    /// predicted and the true displacement take the point (the part 2-D optical flow constrains).
+    pub pixel_epe: f64,
+    /// Pixel distance of the true displacement in the next frame (the no-motion error).
+    pub pixel_zero_motion_epe: f64,
     pub points: usize,
 }
 
@@ -128,12 +137,16 @@ pub fn scene_flow_error(
     let plain = t.device.clone().inner();
     let moving = scene.moving_objects();
     let (mut sum, mut zero, mut n) = (0.0f64, 0.0f64, 0usize);
+    let (mut length, mut cosine) = (0.0f64, 0.0f64);
+    let (mut pix, mut pix_zero, mut n_pix) = (0.0f64, 0.0f64, 0usize);
     for k in 0..t.video.frames.len().saturating_sub(1) {
         let (t0, t1) = (t.video.times[k], t.video.times[k + 1]);
         let camera = &ds.views[t.video.frames[k]].camera;
+        let next_camera = &ds.views[t.video.frames[k + 1]].camera;
         let pixels = (0..camera.intrinsics.num_pixels() as u32).step_by(stride.max(1));
         let rays = nerf_data::rays::pixel_rays(camera, pixels);
         let (mut points, mut truth, mut dirs) = (Vec::new(), Vec::new(), Vec::new());
+        let mut hits = Vec::new();
         for r in 0..rays.len() {
             let (o, d) = (rays.origin(r).map(f64::from), rays.direction(r).map(f64::from));
             let Some(hit) = scene.intersect(o, d, t0 as f64) else {
@@ -143,6 +156,7 @@ pub fn scene_flow_error(
                 continue;
             }
             points.extend(hit.point.map(|c| c as f32));
+            hits.push(hit.point);
             truth.push(scene.object_scene_flow(hit.object, hit.point, t0 as f64, t1 as f64));
             let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
             dirs.extend(d.map(|c| (c / norm) as f32));
@@ -164,15 +178,36 @@ pub fn scene_flow_error(
             .try_into_vec_as::<f32>()
             .unwrap_or_default();
         for (i, g) in truth.iter().enumerate() {
-            let e: f64 = (0..3).map(|a| (pred[3 * i + a] as f64 - g[a]).powi(2)).sum();
+            let p: [f64; 3] = std::array::from_fn(|a| pred[3 * i + a] as f64);
+            let e: f64 = (0..3).map(|a| (p[a] - g[a]).powi(2)).sum();
+            let (lp, lg) = (norm(p), norm(*g));
             sum += e.sqrt();
-            zero += (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+            zero += lg;
+            length += lp;
+            if lp > 0.0 && lg > 0.0 {
+                cosine += (0..3).map(|a| p[a] * g[a]).sum::<f64>() / (lp * lg);
+            }
+            let h = hits[i];
+            let moved = |d: [f64; 3]| next_camera.project(std::array::from_fn(|a| h[a] + d[a]));
+            if let (Some(a), Some(b), Some(c)) = (moved(p), moved(*g), moved([0.0; 3])) {
+                pix += (a.0 - b.0).hypot(a.1 - b.1);
+                pix_zero += (c.0 - b.0).hypot(c.1 - b.1);
+                n_pix += 1;
+            }
             n += 1;
         }
     }
     (n > 0).then(|| SceneFlowError {
         epe: sum / n as f64,
         zero_motion_epe: zero / n as f64,
+        predicted_length: length / n as f64,
+        cosine: cosine / n as f64,
+        pixel_epe: pix / n_pix.max(1) as f64,
+        pixel_zero_motion_epe: pix_zero / n_pix.max(1) as f64,
         points: n,
     })
+}
+
+fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
 }

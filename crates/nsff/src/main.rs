@@ -34,6 +34,9 @@ enum Command {
         /// Also write ground truth | render pairs to RUN_DIR/eval/.
         #[arg(long)]
         save_images: bool,
+        /// Renders between frames: splat or direct (default: the run's own setting).
+        #[arg(long, value_enum)]
+        time_interp: Option<TimeInterp>,
     },
     /// Render a run: the cameras of a D-NeRF transforms file, or a path (bullet time, time-lapse, space-time).
     Render(RenderArgs),
@@ -46,8 +49,9 @@ struct TrainArgs {
     /// Model independent motion: auto (from the optical flow), on or off.
     #[arg(long, value_enum, default_value = "auto")]
     dynamic: DynamicMode,
-    /// Renders between frames: splat (NSFF) or direct (query the field at that time).
-    #[arg(long, value_enum, default_value = "splat")]
+    /// Renders between frames: direct (query the field at that time) or splat (NSFF's
+    /// splatting of both neighbouring frames along the scene flow).
+    #[arg(long, value_enum, default_value = "direct")]
     time_interp: TimeInterp,
 }
 
@@ -77,6 +81,9 @@ struct RenderArgs {
     frames: usize,
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Renders between frames: direct or splat (default: the run's own setting).
+    #[arg(long, value_enum)]
+    time_interp: Option<TimeInterp>,
 }
 
 fn main() -> ExitCode {
@@ -92,8 +99,16 @@ fn main() -> ExitCode {
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Train(args) => train(args),
-        Command::Eval { run_dir, save_images } => {
-            let t = NsffTrainer::resume(&run_dir, |_| {}, false)?;
+        Command::Eval {
+            run_dir,
+            save_images,
+            time_interp,
+        } => {
+            let t = NsffTrainer::resume(
+                &run_dir,
+                |cfg| cfg.time_interp = time_interp.unwrap_or(cfg.time_interp),
+                false,
+            )?;
             let r = write_eval(&t, save_images)?;
             println!("mean_psnr {:.4}", r.mean_psnr);
             Ok(())
@@ -194,8 +209,14 @@ fn write_eval(t: &NsffTrainer, save_images: bool) -> Result<nerf::eval::EvalResu
         let scene = nerf_data::synth::Scene::load(&scene_file)?;
         if let Some(e) = nsff::eval::scene_flow_error(t, &scene, 4) {
             println!(
-                "scene flow on moving objects: EPE {:.4} (no-motion baseline {:.4}) over {} surface points",
-                e.epe, e.zero_motion_epe, e.points
+                "scene flow on moving objects: EPE {:.4} (no-motion baseline {:.4}; predicted length {:.4}, cosine {:.2}) over {} surface points; in the next frame {:.2} px (no motion {:.2} px)",
+                e.epe,
+                e.zero_motion_epe,
+                e.predicted_length,
+                e.cosine,
+                e.points,
+                e.pixel_epe,
+                e.pixel_zero_motion_epe
             );
             let path = t.run_dir.join("scene_flow.json");
             let json =
@@ -261,7 +282,11 @@ fn render_path(t: &NsffTrainer, kind: PathKind, frame: usize, n: usize, out: &Pa
 }
 
 fn render(args: RenderArgs) -> Result<()> {
-    let t = NsffTrainer::resume(&args.run_dir, |_| {}, false)?;
+    let t = NsffTrainer::resume(
+        &args.run_dir,
+        |cfg| cfg.time_interp = args.time_interp.unwrap_or(cfg.time_interp),
+        false,
+    )?;
     let out = args.out.unwrap_or_else(|| args.run_dir.join("render"));
     match args.cameras {
         Some(json) => {

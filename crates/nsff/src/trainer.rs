@@ -336,6 +336,12 @@ impl NsffTrainer {
         grid.update(self.step, step_size, &mut grid_rng, &mut density);
     }
 
+    /// Weight multiplier of the decaying terms (optical flow, depth) now.
+    fn decay(&self) -> f64 {
+        let progress = self.cfg.base.progress(self.step, self.elapsed);
+        self.cfg.decay(self.step, progress)
+    }
+
     /// The loss of one step (NSFF HEAD's terms, method.md §4.6); `None` when no ray has samples.
     fn step_loss(&self, rng: &mut StdRng) -> Option<(Tensor<1>, StepStats)> {
         let dev = &self.device;
@@ -385,7 +391,7 @@ impl NsffTrainer {
         };
         let r_n = rays.len();
         let wts = &self.cfg.weights;
-        let decay = self.cfg.decay(self.step);
+        let decay = self.decay();
         let st = query_static(&self.fields.static_field, x.clone(), &dirs, self.bounds.aabb);
         let flow_scale = self.cfg.flow_scale;
         let dy = query_dynamic(
@@ -444,7 +450,7 @@ impl NsffTrainer {
         );
         let d = composite(dy.sigma.clone(), feats_d, None, &layout, 0.0);
         let acc_d = d.clone().slice([0..r_n, 10..11]);
-        let rgb_d = with_bg(d.clone().slice([0..r_n, 0..3]), acc_d);
+        let rgb_d = with_bg(d.clone().slice([0..r_n, 0..3]), acc_d.clone());
         loss = loss + mse(rgb_d, target.clone()) * wts.dynamic_photo;
 
         // Neighbouring frames: warped renders, disocclusion weights, cycle and flow terms.
@@ -486,9 +492,18 @@ impl NsffTrainer {
                     tgt.extend([i + of.flow[2 * q], jj + of.flow[2 * q + 1]]);
                     mask.push(of.mask[q]);
                 }
+                // The flowed surface point: Σ w·(x + f) over the ray's opacity. Unnormalised, a
+                // ray that is partly transparent (white background, early training) would
+                // project its point towards the world origin, and the flow would learn to undo
+                // that instead of the motion; such rays count as much as they are opaque.
+                let opacity = host_values(&acc_d);
+                for (m, a) in mask.iter_mut().zip(&opacity) {
+                    *m *= a.clamp(0.0, 1.0);
+                }
                 let expected = d
                     .clone()
-                    .slice(if forward { [0..r_n, 4..7] } else { [0..r_n, 7..10] });
+                    .slice(if forward { [0..r_n, 4..7] } else { [0..r_n, 7..10] })
+                    / acc_d.clone().clamp_min(1e-3);
                 let world = match &ds.ndc {
                     Some(ndc) => geometry::ndc_to_world(expected, ndc),
                     None => expected,
