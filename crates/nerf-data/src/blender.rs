@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Deserializer};
 
 use crate::camera::{AxisConvention, Camera, Intrinsics, Pose};
-use crate::dataset::{Dataset, Format, SceneKind, View};
+use crate::dataset::{Dataset, Format, VideoPriors, View};
 use crate::error::{DataError, Result};
 use crate::image::Image;
 use crate::options::LoadOptions;
@@ -229,23 +229,7 @@ pub fn load(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
         .collect::<Result<_>>()?;
     check_sizes(&jobs, &loaded)?;
 
-    let mut dataset = Dataset {
-        source: dir.to_path_buf(),
-        format,
-        kind: SceneKind::Object,
-        views: Vec::with_capacity(jobs.len()),
-        train: Vec::new(),
-        val: Vec::new(),
-        test: Vec::new(),
-        near: 2.0,
-        far: 6.0,
-        depth_bounds: [2.0, 6.0],
-        background: Some(background),
-        ndc: None,
-        aabb: [[-1.5; 3], [1.5; 3]],
-        notes,
-        priors: None,
-    };
+    let mut dataset = Dataset::blender_object(dir.to_path_buf(), format, background, notes);
     let mut resized_note = false;
     for (i, (job, img)) in jobs.into_iter().zip(loaded).enumerate() {
         let (intrinsics, resized) = resolve_intrinsics(&job, img.source_size, opts.downscale)?;
@@ -274,6 +258,13 @@ pub fn load(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
             &train_json,
             format!("no training views left (holdout {holdout} takes every frame)"),
         ));
+    }
+    if format == Format::DNerf && dir.join("disp").is_dir() {
+        // Monocular disparity for a D-NeRF video, `disp/<split>/<stem>.npy` (the view's name).
+        dataset.priors = Some(VideoPriors {
+            disparity: crate::video::read_disparities(&dir.join("disp"), &dataset.views)?,
+            ..VideoPriors::default()
+        });
     }
     dataset.validate()?;
     Ok(dataset)

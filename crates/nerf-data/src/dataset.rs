@@ -118,6 +118,28 @@ pub struct RayBatch {
 }
 
 impl Dataset {
+    /// A scene in the Blender convention with no views yet: an object inside [−1.5, 1.5]³ seen
+    /// from cameras at radius about 4 (near 2, far 6), composited over `background`.
+    pub fn blender_object(source: PathBuf, format: Format, background: [f32; 3], notes: Vec<String>) -> Self {
+        Dataset {
+            source,
+            format,
+            kind: SceneKind::Object,
+            views: Vec::new(),
+            train: Vec::new(),
+            val: Vec::new(),
+            test: Vec::new(),
+            near: 2.0,
+            far: 6.0,
+            depth_bounds: [2.0, 6.0],
+            background: Some(background),
+            ndc: None,
+            aabb: [[-1.5; 3], [1.5; 3]],
+            notes,
+            priors: None,
+        }
+    }
+
     /// Rays of a whole view, row-major, in the space the model samples (NDC where set).
     pub fn view_rays(&self, view: usize) -> Rays {
         let cam = &self.views[view].camera;

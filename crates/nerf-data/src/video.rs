@@ -70,15 +70,7 @@ fn read_priors(dir: &Path, ds: &Dataset) -> Result<Option<VideoPriors>> {
     let n = ds.views.len();
     let optional = |path: &Path| path.is_file().then(|| path.to_path_buf());
 
-    let disparity = ds
-        .views
-        .par_iter()
-        .map(|v| {
-            optional(&disp_dir.join(format!("{}.npy", v.name)))
-                .map(|p| read_disparity(&p, w, h))
-                .transpose()
-        })
-        .collect::<Result<Vec<_>>>()?;
+    let disparity = read_disparities(&disp_dir, &ds.views)?;
     let flow = |i: usize, dir_name: &str| {
         optional(&flow_dir.join(format!("{i:05}_{dir_name}.npz")))
             .map(|p| read_flow(&p, w, h))
@@ -107,6 +99,23 @@ fn read_priors(dir: &Path, ds: &Dataset) -> Result<Option<VideoPriors>> {
         flow_bwd,
         motion_masks,
     }))
+}
+
+/// `disp/<view name>.npy` for every view that has one (`None` for the others), each checked
+/// against its own view's size.
+pub(crate) fn read_disparities(
+    disp_dir: &Path,
+    views: &[crate::dataset::View],
+) -> Result<Vec<Option<Vec<f32>>>> {
+    views
+        .par_iter()
+        .map(|v| {
+            let path = disp_dir.join(format!("{}.npy", v.name));
+            path.is_file()
+                .then(|| read_disparity(&path, v.image.width as usize, v.image.height as usize))
+                .transpose()
+        })
+        .collect()
 }
 
 fn shape_text(shape: &[usize]) -> String {

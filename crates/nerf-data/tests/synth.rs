@@ -639,3 +639,88 @@ fn the_blender_loader_reads_the_generated_folder() {
         }
     }
 }
+
+/// `--mono-disparity`: every training frame gets `disp/train/<name>.npy`, the D-NeRF loader
+/// reads it as the video's disparity prior, and each frame's disparity is an affine function
+/// of the true inverse depth after the documented smoothing, up to the noise (a least-squares
+/// fit per frame against the ground-truth depth: positive scale, high correlation).
+/// A disparity file of the wrong size is an error naming the file.
+#[test]
+fn mono_disparity_is_affine_in_true_inverse_depth_and_loads_as_a_prior() {
+    let dir = TempDir::new("disp");
+    let mut cfg = small(Preset::Dynamic).with_seed(4);
+    cfg.mono_disparity = true;
+    generate(&cfg, &dir.0).unwrap();
+    let opts = nerf_data::LoadOptions::default();
+    let ds = nerf_data::load::load_video(&dir.0, &opts).unwrap();
+    let priors = ds.priors.as_ref().expect("disp/ is read as a prior");
+    assert_eq!(priors.disparity.len(), ds.views.len());
+    let mut slopes = Vec::new();
+    for (i, view) in ds.views.iter().enumerate() {
+        let disp = &priors.disparity[i];
+        if !ds.train.contains(&i) {
+            assert!(disp.is_none(), "{}: test views have no prior", view.name);
+            continue;
+        }
+        let disp = disp
+            .as_ref()
+            .unwrap_or_else(|| panic!("{}: no disparity", view.name));
+        let depth = read_npy(&dir.0.join("gt").join(format!("{}_depth.npy", view.name)))
+            .unwrap()
+            .to_f32();
+        // The documented smoothing, recomputed here: 3x3 box mean of 1/z (0 on background),
+        // clipped at the borders; the disparity must be affine in it up to the noise.
+        let (w, h) = (cfg.width as usize, cfg.height as usize);
+        let inv: Vec<f64> = depth
+            .iter()
+            .map(|&z| if z > 0.0 { 1.0 / z as f64 } else { 0.0 })
+            .collect();
+        let (mut xs, mut ys) = (Vec::new(), Vec::new());
+        for y in 0..h {
+            for x in 0..w {
+                let (mut sum, mut count) = (0.0, 0.0);
+                for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                    for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                        sum += inv[yy * w + xx];
+                        count += 1.0;
+                    }
+                }
+                xs.push(sum / count);
+                ys.push(disp[y * w + x] as f64);
+            }
+        }
+        assert!(
+            xs.len() > 100,
+            "{}: too few flat pixels ({})",
+            view.name,
+            xs.len()
+        );
+        let n = xs.len() as f64;
+        let (mx, my) = (xs.iter().sum::<f64>() / n, ys.iter().sum::<f64>() / n);
+        let sxy: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
+        let sxx: f64 = xs.iter().map(|x| (x - mx).powi(2)).sum();
+        let syy: f64 = ys.iter().map(|y| (y - my).powi(2)).sum();
+        let slope = sxy / sxx;
+        let corr = sxy / (sxx * syy).sqrt();
+        // Noise of 5 % of the mean disparity against a signal spread of about 0.1.
+        assert!(
+            slope > 0.0 && corr > 0.9,
+            "{}: slope {slope}, correlation {corr}",
+            view.name
+        );
+        slopes.push(slope);
+    }
+    // The scale differs from frame to frame (what makes the prior scale-invariant per frame).
+    let (lo, hi) = slopes
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), &s| (a.min(s), b.max(s)));
+    assert!(hi / lo > 1.2, "per-frame scales {slopes:?}");
+
+    // A disparity of the wrong size names its file.
+    let bad = dir.0.join("disp/train/r_001.npy");
+    nerf_data::npy::write_npy(&bad, &[3, 4], &[0.5; 12]).unwrap();
+    let err = nerf_data::load::load_video(&dir.0, &opts)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("r_001.npy") && err.contains("disparity"), "{err}");
+}

@@ -65,6 +65,10 @@ enum Command {
         /// Held-out test views.
         #[arg(long)]
         test_views: Option<usize>,
+        /// Video presets: also write disp/ with a simulated monocular disparity per training
+        /// frame (true inverse depth, smoothed, noisy, unknown scale and shift), NSFF's depth prior.
+        #[arg(long)]
+        mono_disparity: bool,
     },
 }
 
@@ -164,8 +168,10 @@ fn run(cli: Cli) -> Result<()> {
             size,
             frames,
             test_views,
+            mono_disparity,
         } => {
             let mut cfg = nerf_data::synth::SynthConfig::new(preset).with_seed(seed);
+            cfg.mono_disparity = mono_disparity;
             if let Some(s) = size {
                 cfg = cfg.with_size(s[0], s[1]);
             }

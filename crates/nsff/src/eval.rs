@@ -89,15 +89,82 @@ pub fn evaluate(
     with_ssim: bool,
     save: Option<&Path>,
 ) -> Result<EvalResult> {
+    Ok(evaluate_with_depth(t, views, with_ssim, save)?.0)
+}
+
+/// [`evaluate`], also returning each view's rendered depth (`[H*W]`, Σw·t over the opacity,
+/// camera depth for Euclidean scenes).
+pub fn evaluate_with_depth(
+    t: &NsffTrainer,
+    views: &[usize],
+    with_ssim: bool,
+    save: Option<&Path>,
+) -> Result<(EvalResult, Vec<Vec<f32>>)> {
     let ds = &t.video.dataset;
+    let mut depths = Vec::with_capacity(views.len());
     let mut result = score_views(ds, views, with_ssim, save, |v| {
         let view = &ds.views[v];
         let r = render_at(t, &view.camera, view.time.unwrap_or(0.0));
+        depths.push(
+            r.depth
+                .iter()
+                .zip(&r.opacity)
+                .map(|(d, a)| d / a.max(1e-3))
+                .collect(),
+        );
         (r.rgb, r.samples_per_ray)
     })?;
     result.step = t.step;
     result.train_seconds = t.elapsed;
-    Ok(result)
+    Ok((result, depths))
+}
+
+/// Rendered depth against the generator's ground truth on surface pixels of held-out views.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DepthError {
+    /// Mean |rendered − true| camera depth (scene units).
+    pub mean_abs: f64,
+    /// Median of |rendered − true| / true.
+    pub median_relative: f64,
+    pub pixels: usize,
+}
+
+/// Compares `depths` (one per view in `views`, from [`evaluate_with_depth`]) with
+/// `gt/<view name>_depth.npy` under the dataset folder (written by `nerf synth`; 0 where the
+/// pixel sees background, skipped). `None` when no view has a ground-truth file or for NDC
+/// scenes, whose ray parameter is not a camera depth.
+pub fn depth_error(t: &NsffTrainer, views: &[usize], depths: &[Vec<f32>]) -> Result<Option<DepthError>> {
+    let ds = &t.video.dataset;
+    if ds.ndc.is_some() {
+        return Ok(None);
+    }
+    let (mut abs, mut rel) = (0.0f64, Vec::new());
+    for (&v, depth) in views.iter().zip(depths) {
+        let path = t
+            .cfg
+            .base
+            .data
+            .join("gt")
+            .join(format!("{}_depth.npy", ds.views[v].name));
+        if !path.is_file() {
+            continue;
+        }
+        let truth = nerf_data::npy::read_npy(&path)?.to_f32();
+        for (&d, &g) in depth.iter().zip(&truth).filter(|(_, g)| **g > 0.0) {
+            let e = (d as f64 - g as f64).abs();
+            abs += e;
+            rel.push(e / g as f64);
+        }
+    }
+    if rel.is_empty() {
+        return Ok(None);
+    }
+    rel.sort_by(f64::total_cmp);
+    Ok(Some(DepthError {
+        mean_abs: abs / rel.len() as f64,
+        median_relative: rel[rel.len() / 2],
+        pixels: rel.len(),
+    }))
 }
 
 /// 3-D scene-flow error of the dynamic field on the moving objects of a scene from our

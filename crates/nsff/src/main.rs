@@ -10,7 +10,7 @@ use nerf::render::FrameWriter;
 use nerf_data::error::{DataError, Result};
 use nerf_data::{Camera, Image, LoadOptions};
 use nsff::config::{DynamicMode, NsffConfig, TimeInterp};
-use nsff::eval::{evaluate, render_at};
+use nsff::eval::{evaluate_with_depth, render_at};
 use nsff::trainer::{CHECKPOINT, NsffTrainer, load_video};
 
 #[derive(Parser)]
@@ -182,7 +182,7 @@ fn write_eval(t: &NsffTrainer, save_images: bool) -> Result<nerf::eval::EvalResu
     if save_images {
         std::fs::create_dir_all(&dir).map_err(|e| DataError::io(&dir, e))?;
     }
-    let result = evaluate(t, &views, true, save_images.then_some(dir.as_path()))?;
+    let (result, depths) = evaluate_with_depth(t, &views, true, save_images.then_some(dir.as_path()))?;
     let path = t.run_dir.join("eval.json");
     let json = serde_json::to_vec_pretty(&result).map_err(|e| DataError::invalid(&path, e.to_string()))?;
     nerf_data::image::write_atomic(&path, &json)?;
@@ -223,6 +223,12 @@ fn write_eval(t: &NsffTrainer, save_images: bool) -> Result<nerf::eval::EvalResu
                 serde_json::to_vec_pretty(&e).map_err(|err| DataError::invalid(&path, err.to_string()))?;
             nerf_data::image::write_atomic(&path, &json)?;
         }
+    }
+    if let Some(e) = nsff::eval::depth_error(t, &views, &depths)? {
+        println!(
+            "depth on surfaces of the held-out views: mean abs error {:.4}, median relative error {:.4} over {} pixels",
+            e.mean_abs, e.median_relative, e.pixels
+        );
     }
     Ok(result)
 }

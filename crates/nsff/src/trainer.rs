@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{DynamicMode, NsffConfig};
 use crate::geometry;
-use crate::losses::{entropy, mse, wmae, wmse};
+use crate::losses::{entropy, mse, scale_shift_invariant, wmae, wmse};
 use crate::model::{Field, NsffFields, occupancy_density, query_dynamic, query_static};
 use crate::render::sample_rays;
 use crate::video::{Video, prepare};
@@ -441,17 +441,33 @@ impl NsffTrainer {
             loss = loss + depth * wts.hidden;
         }
 
-        // Dynamic-only render, also integrating the flowed points (for the optical-flow term).
+        // Dynamic-only render, also integrating the flowed points (for the optical-flow term)
+        // and a disparity-like value per sample (for the depth prior).
         let x_next = x.clone() + dy.flow_next.clone();
         let x_prev = x.clone() + dy.flow_prev.clone();
+        let disp_col = tensor(sample_disparity(&samples.t, ds.ndc.is_some()), 1, dev);
         let feats_d = Tensor::cat(
-            vec![dy.rgb.clone(), t_col.clone(), x_next.clone(), x_prev.clone()],
+            vec![
+                dy.rgb.clone(),
+                t_col.clone(),
+                x_next.clone(),
+                x_prev.clone(),
+                disp_col,
+            ],
             1,
         );
         let d = composite(dy.sigma.clone(), feats_d, None, &layout, 0.0);
-        let acc_d = d.clone().slice([0..r_n, 10..11]);
+        let acc_d = d.clone().slice([0..r_n, 11..12]);
         let rgb_d = with_bg(d.clone().slice([0..r_n, 0..3]), acc_d.clone());
         loss = loss + mse(rgb_d, target.clone()) * wts.dynamic_photo;
+        if let (Some(disp), true) = (&v.disparity[k], wts.depth > 0.0) {
+            // Monocular disparity, up to an unknown scale and shift per frame.
+            let prior: Vec<f32> = pixels.iter().map(|&p| disp[p as usize]).collect();
+            let rendered = d.clone().slice([0..r_n, 10..11]);
+            if let Some(l) = scale_shift_invariant(rendered.clone(), &host_values(&rendered), &prior) {
+                loss = loss + l * (wts.depth * decay);
+            }
+        }
 
         // Neighbouring frames: warped renders, disocclusion weights, cycle and flow terms.
         let neighbours = [
@@ -700,6 +716,16 @@ fn hidden_weights(sigma_st: &[f32], sigma_dy: &[f32], blend: &[f32], layout: &Ra
         }
     }
     out
+}
+
+/// Per-sample value whose render the depth prior compares with monocular disparity: 1/t for a
+/// Euclidean ray (t is the camera depth), 1 − t in NDC (t = 1 − near/|z|, so 1 − t is
+/// proportional to the disparity). Either way the rendered value is affine in disparity where
+/// the ray is opaque, which is all the scale- and shift-invariant loss needs.
+fn sample_disparity(t: &[f32], ndc: bool) -> Vec<f32> {
+    t.iter()
+        .map(|&t| if ndc { 1.0 - t } else { 1.0 / t.max(1e-3) })
+        .collect()
 }
 
 /// A `[N, 1]` tensor's values on the host, without gradient.

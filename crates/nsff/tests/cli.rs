@@ -19,10 +19,12 @@ fn temp(name: &str) -> PathBuf {
 }
 
 /// A video from our generator (`preset`: dynamic or static_video), `w`×`h`, `frames` frames,
-/// 4 held-out (camera, time) pairs.
+/// 4 held-out (camera, time) pairs, with a simulated monocular disparity (`disp/`), so training
+/// runs the depth prior too.
 fn video(dir: &Path, preset: Preset, (w, h): (u32, u32), frames: usize) -> PathBuf {
     let data = dir.join(preset.as_str());
-    let cfg = SynthConfig::new(preset).with_size(w, h).with_views(frames, 4);
+    let mut cfg = SynthConfig::new(preset).with_size(w, h).with_views(frames, 4);
+    cfg.mono_disparity = true;
     nerf_data::synth::generate(&cfg, &data).unwrap();
     data
 }
@@ -59,6 +61,7 @@ fn train_eval_and_render_cameras_agree() {
     // The generator's scenes carry their motion: the scene-flow error is reported.
     let text = String::from_utf8_lossy(&eval.stdout);
     assert!(text.contains("scene flow on moving objects: EPE"), "{text}");
+    assert!(text.contains("depth on surfaces of the held-out views"), "{text}");
     assert!(evaluated > 12.0, "60 steps should learn something: {evaluated}");
 
     let renders = dir.join("cams");

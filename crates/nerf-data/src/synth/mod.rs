@@ -26,6 +26,8 @@
 //!   H×W, 1 where the point is visible in that frame, else 0; all zero where there is no
 //!   neighbour).
 //! - `scene.json`: the full [`Scene`], reloadable with [`Scene::load`].
+//! - with [`SynthConfig::mono_disparity`], video presets: `disp/train/r_000.npy`, a simulated
+//!   monocular disparity (float32 H×W, unknown scale and shift per frame, smoothed and noisy).
 
 mod presets;
 mod scene;
@@ -104,6 +106,9 @@ pub struct SynthConfig {
     /// Held-out views. Video presets split them into off-path cameras at training times (the
     /// first half, rounded up) and on-path cameras at mid-frame times (the rest).
     pub test_views: usize,
+    /// Video presets: also write a simulated monocular disparity per training frame
+    /// (`disp/train/r_000.npy`, see [`Scene::write_mono_disparity`]).
+    pub mono_disparity: bool,
 }
 
 impl SynthConfig {
@@ -121,6 +126,7 @@ impl SynthConfig {
             height,
             frames,
             test_views,
+            mono_disparity: false,
         }
     }
 
