@@ -80,8 +80,8 @@ pub enum TimeInterp {
     Splat,
     /// Query the space-time field at the in-between time directly (the default: the hash
     /// grid's time cells end on frames, so this interpolates the two neighbours' features; on
-    /// dyn0 it is 2.7–3.5 dB better than splatting on the same checkpoints and 6× faster,
-    /// BENCHMARKS.md §4).
+    /// dyn0 it is 0.6–2.7 dB better in mean PSNR than splatting on the same checkpoints and
+    /// 6× faster, BENCHMARKS.md §4).
     Direct,
 }
 

@@ -6,6 +6,7 @@ use burn::module::Module;
 
 use nerf::eval::{EvalResult, score_views};
 use nerf_data::error::Result;
+use nerf_data::math::{dot, norm, normalize, sub};
 
 use crate::config::TimeInterp;
 use crate::render::{HostRender, render_direct, render_splat};
@@ -225,8 +226,7 @@ pub fn scene_flow_error(
             points.extend(hit.point.map(|c| c as f32));
             hits.push(hit.point);
             truth.push(scene.object_scene_flow(hit.object, hit.point, t0 as f64, t1 as f64));
-            let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            dirs.extend(d.map(|c| (c / norm) as f32));
+            dirs.extend(normalize(d).map(|c| c as f32));
         }
         if truth.is_empty() {
             continue;
@@ -246,13 +246,12 @@ pub fn scene_flow_error(
             .unwrap_or_default();
         for (i, g) in truth.iter().enumerate() {
             let p: [f64; 3] = std::array::from_fn(|a| pred[3 * i + a] as f64);
-            let e: f64 = (0..3).map(|a| (p[a] - g[a]).powi(2)).sum();
             let (lp, lg) = (norm(p), norm(*g));
-            sum += e.sqrt();
+            sum += norm(sub(p, *g));
             zero += lg;
             length += lp;
             if lp > 0.0 && lg > 0.0 {
-                cosine += (0..3).map(|a| p[a] * g[a]).sum::<f64>() / (lp * lg);
+                cosine += dot(p, *g) / (lp * lg);
             }
             let h = hits[i];
             let moved = |d: [f64; 3]| next_camera.project(std::array::from_fn(|a| h[a] + d[a]));
@@ -273,8 +272,4 @@ pub fn scene_flow_error(
         pixel_zero_motion_epe: pix_zero / n_pix.max(1) as f64,
         points: n,
     })
-}
-
-fn norm(v: [f64; 3]) -> f64 {
-    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
 }

@@ -464,7 +464,7 @@ impl NsffTrainer {
             // Monocular disparity, up to an unknown scale and shift per frame.
             let prior: Vec<f32> = pixels.iter().map(|&p| disp[p as usize]).collect();
             let rendered = d.clone().slice([0..r_n, 10..11]);
-            if let Some(l) = scale_shift_invariant(rendered.clone(), &host_values(&rendered), &prior) {
+            if let Some(l) = scale_shift_invariant(rendered, &prior) {
                 loss = loss + l * (wts.depth * decay);
             }
         }
