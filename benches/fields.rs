@@ -14,13 +14,14 @@ use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
 use criterion::{Criterion, criterion_group};
 use nerf::config::{Preset, TrainConfig};
-use nerf::field::{FastField, VanillaField, VanillaFieldConfig, normalize};
+use nerf::field::{FastField, VanillaField, VanillaFieldConfig};
 use nerf::model::{StaticModel, fast_config};
 use nerf::renderer::SceneBounds;
+use nerf_core::field::{Field, FieldQuery};
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_data::{Camera, Intrinsics, LoadOptions, Pose, rays::camera_rays};
 use nsff::config::NsffConfig;
-use nsff::model::{NsffFields, query_dynamic, query_static};
+use nsff::model::{NsffFields, NsffModel, query_dynamic};
 use nsff::render::render_direct;
 use rand::{Rng, SeedableRng, rngs::StdRng};
 
@@ -67,39 +68,36 @@ fn configs() -> (TrainConfig, NsffConfig) {
 }
 
 fn fast_forward(f: &FastField, x: &Tensor<2>, dirs: &[f32]) -> Tensor<1> {
-    let out = f.forward(normalize(x.clone(), AABB), dirs);
+    let out = f.query(FieldQuery::new(x.clone(), dirs));
     out.sigma.sum() + out.rgb.sum()
 }
 
 fn vanilla_forward(f: &VanillaField, x: &Tensor<2>, dirs: &[f32]) -> Tensor<1> {
-    let out = f.forward(x.clone(), dirs);
+    let out = f.query(FieldQuery::new(x.clone(), dirs));
     out.sigma.sum() + out.rgb.sum()
 }
 
 fn nsff_forward(f: &NsffFields, x: &Tensor<2>, dirs: &[f32]) -> Tensor<1> {
-    let st = query_static(&f.static_field, x.clone(), dirs, AABB);
+    let st = f.static_field.query(FieldQuery::new(x.clone(), dirs));
     let dynamic = f
         .dynamic
         .as_ref()
         .unwrap_or_else(|| unreachable!("built with a dynamic field"));
-    let dy = query_dynamic(dynamic, x.clone(), 0.5, dirs, AABB, 0.25);
-    st.sigma.sum()
-        + st.rgb.sum()
-        + st.blend.sum()
-        + dy.sigma.sum()
-        + dy.rgb.sum()
-        + dy.flow_next.sum()
-        + dy.flow_prev.sum()
-        + dy.prob_next.sum()
+    let dy = query_dynamic(dynamic, x.clone(), 0.5, dirs);
+    let mut total = st.sigma.sum() + st.rgb.sum() + dy.sigma.sum() + dy.rgb.sum();
+    for (_, extra) in st.extras.0.into_iter().chain(dy.extras.0) {
+        total = total + extra.sum();
+    }
+    total
 }
 
 fn field_benches(c: &mut Criterion) {
     let dev = Device::flex().autodiff();
     let (base, nsff_cfg) = configs();
     let vanilla = VanillaFieldConfig::new().init(&dev);
-    let fast = fast_config(&base, 0).init(&dev, 0);
-    let nsff = NsffFields::new(&nsff_cfg, true, &dev);
-    let grids = nsff.grids();
+    let fast = fast_config(&base, AABB, 0).init(&dev, 0);
+    let nsff = NsffFields::new(&nsff_cfg, AABB, true, &dev);
+    let grids = nsff.host_params();
     let (x, dirs) = inputs(&dev);
     let xp = x.clone().inner();
 
@@ -182,8 +180,8 @@ fn render_benches(c: &mut Criterion) {
     };
     let mut model = StaticModel::new(&base, bounds.clone(), &dev);
     model.occupancy = Some(shell_grid(&base));
-    let nsff = NsffFields::new(&nsff_cfg, true, &dev);
-    let grid = shell_grid(&base);
+    let mut nsff = NsffModel::new(&nsff_cfg, bounds, vec![0.0, 0.5, 1.0], true, &dev);
+    nsff.occupancy = Some(shell_grid(&base));
     let mut g = c.benchmark_group("render_frame");
     g.sample_size(10).warm_up_time(Duration::from_millis(500));
     g.measurement_time(Duration::from_secs(5));
@@ -195,7 +193,7 @@ fn render_benches(c: &mut Criterion) {
         g.bench_function(&id, |b| {
             b.iter_custom(|n| {
                 timed(&id, n, || {
-                    let _ = model.render_rays(&rays, &base, Some([1.0; 3]), &dev);
+                    let _ = model.render_rays(&rays, Some([1.0; 3]), &dev);
                 })
             })
         });
@@ -205,16 +203,7 @@ fn render_benches(c: &mut Criterion) {
                 timed(&id, n, || {
                     for start in (0..rays.len()).step_by(16384) {
                         let part = rays.slice(start..(start + 16384).min(rays.len()));
-                        let _ = render_direct(
-                            &nsff,
-                            &part,
-                            0.5,
-                            &nsff_cfg,
-                            &bounds,
-                            Some(&grid),
-                            Some([1.0; 3]),
-                            &dev,
-                        );
+                        let _ = render_direct(&nsff, &part, 0.5, Some([1.0; 3]), &dev);
                     }
                 })
             })

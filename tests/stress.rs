@@ -115,10 +115,10 @@ fn training_at_ten_times_the_learning_rate_never_goes_non_finite() {
     let dir = std::env::temp_dir().join(format!("nerf-stress-lr-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let data = dir.join("scene");
-    let cfg = nerf_data::synth::SynthConfig::new(nerf_data::synth::Preset::Static)
+    let cfg = nerf_synth::SynthConfig::new(nerf_synth::Preset::Static)
         .with_size(24, 24)
         .with_views(16, 2);
-    nerf_data::synth::generate(&cfg, &data).unwrap();
+    nerf_synth::generate(&cfg, &data).unwrap();
     for preset in [Preset::Fast, Preset::Vanilla] {
         let mut cfg = TrainConfig::new(preset, data.clone(), Default::default());
         cfg.lr *= 10.0;
@@ -136,7 +136,15 @@ fn training_at_ten_times_the_learning_rate_never_goes_non_finite() {
         // final checkpoint loads and renders finite images.
         let resumed = Trainer::resume(&run, |_| {}).unwrap();
         assert_eq!(resumed.step, resumed.cfg.steps, "{preset:?}");
-        let e = nerf::eval::evaluate(&resumed, &resumed.dataset.test.clone(), false);
+        let e = nerf::eval::evaluate(
+            &resumed.model,
+            &resumed.dataset,
+            &resumed.dataset.test,
+            false,
+            None,
+            &resumed.device,
+        )
+        .unwrap();
         assert!(e.mean_psnr.is_finite(), "{preset:?}: {}", e.mean_psnr);
         eprintln!(
             "{preset:?} at 10x lr: {} steps, held-out PSNR {:.2}",

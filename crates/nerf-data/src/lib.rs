@@ -1,14 +1,14 @@
 //! Scene inputs for the NeRF and NSFF crates: cameras, rays, images and one parser per format.
 //!
-//! This crate has no burn dependency, so parsers and the generator build and test in seconds;
-//! `nerf-core` re-exports the geometry modules as part of the shared rendering crate.
+//! This crate has no burn dependency, so the parsers build and test in seconds; `nerf-core`
+//! re-exports the geometry modules as part of the shared rendering crate. The synthetic scene
+//! generator (`nerf-synth`) and the optical-flow estimators (`nerf-flow`) build on it.
 
 pub mod blender;
 pub mod camera;
 pub mod colmap;
 pub mod dataset;
 pub mod error;
-pub mod flow;
 pub mod image;
 pub mod llff;
 pub mod load;
@@ -18,7 +18,6 @@ pub mod npy;
 pub mod npz;
 pub mod options;
 pub mod rays;
-pub mod synth;
 pub mod tiny_npz;
 pub mod video;
 

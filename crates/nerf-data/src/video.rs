@@ -154,7 +154,7 @@ fn read_disparity(path: &Path, w: usize, h: usize) -> Result<Vec<f32>> {
 }
 
 /// `flow_i1/NNNNN_{fwd,bwd}.npz`: `flow` H x W x 2 in pixels and `mask` H x W (bool/uint8/float).
-pub(crate) fn read_flow(path: &Path, w: usize, h: usize) -> Result<FlowField> {
+pub fn read_flow(path: &Path, w: usize, h: usize) -> Result<FlowField> {
     let arrays = crate::npz::read_npz(path)?;
     let get = |key: &str| {
         arrays.get(key).ok_or_else(|| {

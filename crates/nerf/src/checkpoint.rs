@@ -1,9 +1,62 @@
 //! Checkpoint files: named binary sections in one file, written atomically (temporary file in
 //! the same folder, fsync, rename), so an interrupted write never damages the last checkpoint.
+//!
+//! A model's record is its burn module record plus its host-side tables (hash grids and their
+//! sparse-Adam moments) and occupancy grid; [`write_model_parts`] and [`read_model_parts`] are the
+//! one path every model (static, NSFF, a user's own field) saves and loads them through.
 
 use std::path::Path;
+use std::sync::Arc;
 
-use nerf_data::error::{DataError, Result};
+use burn::module::Module;
+use burn::tensor::{Bytes, Device};
+use nerf_core::encoding::HashGrid;
+use nerf_core::occupancy::OccupancyGrid;
+
+use crate::config::TrainConfig;
+use crate::error::{ModelError, Result};
+use crate::field::{BaseField, FieldModule};
+use crate::model::{FieldBuilder, StaticFields, StaticModel, base_field};
+use crate::renderer::SceneBounds;
+
+/// What a static run's checkpoint records besides the model.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct TrainState {
+    pub config: TrainConfig,
+    pub step: usize,
+    /// Seconds of training so far (evaluation pauses excluded).
+    pub elapsed: f64,
+    /// Current ray count of the adaptive batch (fast preset).
+    pub n_rays: usize,
+}
+
+/// A trained static model for inference, on a plain (no autodiff) device: no dataset, no
+/// optimiser.
+pub struct TrainedModel<F: Module = BaseField> {
+    pub state: TrainState,
+    pub model: StaticModel<F>,
+    pub device: Device,
+}
+
+/// Loads `run_dir/checkpoint.bin` written by `nerf train`.
+pub fn load_trained(run_dir: &Path) -> Result<TrainedModel> {
+    load_trained_with_field(run_dir, |cfg, bounds, device| {
+        base_field(cfg, bounds.aabb, 0, device)
+    })
+}
+
+/// [`load_trained`] for a run whose fields `build` makes.
+pub fn load_trained_with_field<F: FieldModule>(
+    run_dir: &Path,
+    build: FieldBuilder<F>,
+) -> Result<TrainedModel<F>> {
+    let path = run_dir.join(crate::train_loop::CHECKPOINT);
+    let s = Sections::read(&path)?;
+    let state: TrainState = s.json("state", &path)?;
+    let device = crate::trainer::device(&state.config, false)?;
+    let model = StaticModel::from_sections(&state.config, &s, &path, &device, build)?;
+    Ok(TrainedModel { state, model, device })
+}
 
 const MAGIC: &[u8] = b"NERFRS-CKPT-1\n";
 
@@ -23,7 +76,7 @@ impl Sections {
     /// A required section, or an error naming the file and the section.
     pub fn require(&self, name: &str, path: &Path) -> Result<&[u8]> {
         self.get(name)
-            .ok_or_else(|| DataError::invalid(path, format!("checkpoint has no '{name}' section")))
+            .ok_or_else(|| ModelError::checkpoint(path, format!("checkpoint has no '{name}' section")))
     }
 
     pub fn to_bytes(&self) -> Vec<u8> {
@@ -39,7 +92,7 @@ impl Sections {
     }
 
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self> {
-        let bad = |msg: String| DataError::invalid(path, msg);
+        let bad = |msg: String| ModelError::checkpoint(path, msg);
         if !bytes.starts_with(MAGIC) {
             return Err(bad("not a checkpoint of this program (bad header)".into()));
         }
@@ -51,12 +104,12 @@ impl Sections {
             at += n;
             Ok(s)
         };
-        let count = u32::from_le_bytes(take(4, "the section count")?.try_into().unwrap_or_default()) as usize;
+        let count = u32_le(take(4, "the section count")?) as usize;
         let mut sections = Sections::default();
         for _ in 0..count {
-            let len = u32::from_le_bytes(take(4, "a section name")?.try_into().unwrap_or_default()) as usize;
+            let len = u32_le(take(4, "a section name")?) as usize;
             let name = String::from_utf8_lossy(take(len, "a section name")?).into_owned();
-            let len = u64::from_le_bytes(take(8, &name)?.try_into().unwrap_or_default()) as usize;
+            let len = u64_le(take(8, &name)?) as usize;
             let data = take(len, &name)?.to_vec();
             sections.push(&name, data);
         }
@@ -64,11 +117,153 @@ impl Sections {
     }
 
     pub fn write(&self, path: &Path) -> Result<()> {
-        nerf_data::image::write_atomic(path, &self.to_bytes())
+        Ok(nerf_data::image::write_atomic(path, &self.to_bytes())?)
     }
 
     pub fn read(path: &Path) -> Result<Self> {
         Self::from_bytes(&nerf_data::error::read_file(path)?, path)
+    }
+
+    /// A JSON section.
+    pub fn push_json<T: serde::Serialize>(&mut self, name: &str, value: &T, path: &Path) -> Result<()> {
+        let bytes =
+            serde_json::to_vec_pretty(value).map_err(|e| ModelError::checkpoint(path, e.to_string()))?;
+        self.push(name, bytes);
+        Ok(())
+    }
+
+    pub fn json<T: serde::de::DeserializeOwned>(&self, name: &str, path: &Path) -> Result<T> {
+        serde_json::from_slice(self.require(name, path)?)
+            .map_err(|e| ModelError::checkpoint(path, format!("bad '{name}' section: {e}")))
+    }
+}
+
+/// Little-endian integers from slices whose length the caller has checked.
+fn u32_le(b: &[u8]) -> u32 {
+    u32::from_le_bytes([b[0], b[1], b[2], b[3]])
+}
+
+fn u64_le(b: &[u8]) -> u64 {
+    u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]])
+}
+
+/// Adds a module's record, its host tables and an occupancy grid as sections named after
+/// `prefix`.
+pub fn write_model_parts<M: Module>(
+    s: &mut Sections,
+    prefix: &str,
+    module: &M,
+    host: &[Arc<HashGrid>],
+    occupancy: Option<&OccupancyGrid>,
+    path: &Path,
+) -> Result<()> {
+    let bytes = module
+        .clone()
+        .into_record()
+        .into_bytes()
+        .map_err(|e| ModelError::checkpoint(path, format!("cannot save model: {e:?}")))?;
+    s.push(prefix, bytes.to_vec());
+    for (k, grid) in host.iter().enumerate() {
+        s.push(&format!("{prefix}.grid{k}"), f32_bytes(&grid.table()));
+        let (step, m, v) = grid.adam_state();
+        let mut adam = step.to_le_bytes().to_vec();
+        adam.extend(f32_bytes(&m));
+        adam.extend(f32_bytes(&v));
+        s.push(&format!("{prefix}.grid{k}_adam"), adam);
+    }
+    if let Some(o) = occupancy {
+        s.push(&format!("{prefix}.occupancy"), f32_bytes(o.values()));
+        s.push(
+            &format!("{prefix}.carved"),
+            o.carved().iter().map(|&c| u8::from(c)).collect(),
+        );
+    }
+    Ok(())
+}
+
+/// Loads what [`write_model_parts`] wrote into a freshly built `module` (whose host tables are
+/// `host(&module)`) and `occupancy`.
+pub fn read_model_parts<M: Module>(
+    s: &Sections,
+    prefix: &str,
+    module: M,
+    host: impl Fn(&M) -> Vec<Arc<HashGrid>>,
+    occupancy: Option<&mut OccupancyGrid>,
+    path: &Path,
+) -> Result<M> {
+    let record =
+        burn::store::ModuleRecord::from_bytes(Bytes::from_bytes_vec(s.require(prefix, path)?.to_vec()))
+            .map_err(|e| ModelError::checkpoint(path, format!("cannot read model: {e:?}")))?;
+    let module = module
+        .try_load_record(record)
+        .map_err(|e| ModelError::checkpoint(path, format!("model does not match its config: {e:?}")))?;
+    for (k, grid) in host(&module).iter().enumerate() {
+        let table = bytes_f32(s.require(&format!("{prefix}.grid{k}"), path)?);
+        let n = grid.num_params();
+        grid.set_table(table).map_err(|want| {
+            ModelError::checkpoint(
+                path,
+                format!("hash table {k} has the wrong size (config needs {want})"),
+            )
+        })?;
+        let adam = s.require(&format!("{prefix}.grid{k}_adam"), path)?;
+        if adam.len() != 8 + 8 * n {
+            return Err(ModelError::checkpoint(
+                path,
+                format!("hash-grid {k} optimiser state has the wrong size"),
+            ));
+        }
+        grid.set_adam_state(
+            u64_le(&adam[..8]),
+            bytes_f32(&adam[8..8 + 4 * n]),
+            bytes_f32(&adam[8 + 4 * n..]),
+        );
+    }
+    if let Some(o) = occupancy {
+        let values = bytes_f32(s.require(&format!("{prefix}.occupancy"), path)?);
+        let carved = s.require(&format!("{prefix}.carved"), path)?;
+        if values.len() != o.num_cells() || carved.len() != o.num_cells() {
+            return Err(ModelError::checkpoint(path, "occupancy grid has the wrong size"));
+        }
+        o.set_values(values);
+        o.set_carved(carved.iter().map(|&c| c != 0).collect());
+    }
+    Ok(module)
+}
+
+/// The static model's sections: "bounds" and the "model" parts.
+impl<F: FieldModule> StaticModel<F> {
+    pub fn write_sections(&self, s: &mut Sections, path: &Path) -> Result<()> {
+        s.push_json("bounds", &self.bounds, path)?;
+        write_model_parts(
+            s,
+            "model",
+            &self.fields,
+            &self.host_params(),
+            self.occupancy.as_ref(),
+            path,
+        )
+    }
+
+    /// Rebuilds the model that `cfg` describes from checkpoint sections; fields made by `build`.
+    pub fn from_sections(
+        cfg: &TrainConfig,
+        s: &Sections,
+        path: &Path,
+        device: &Device,
+        build: FieldBuilder<F>,
+    ) -> Result<Self> {
+        let bounds: SceneBounds = s.json("bounds", path)?;
+        let mut model = StaticModel::with_field(cfg, bounds, device, build);
+        model.fields = read_model_parts(
+            s,
+            "model",
+            model.fields,
+            StaticFields::host_params,
+            model.occupancy.as_mut(),
+            path,
+        )?;
+        Ok(model)
     }
 }
 

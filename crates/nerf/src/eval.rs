@@ -2,11 +2,14 @@
 
 use std::time::Instant;
 
+use burn::tensor::Device;
 use nerf_core::metrics::{psnr, ssim};
 use nerf_data::Dataset;
 use serde::{Deserialize, Serialize};
 
-use crate::trainer::Trainer;
+use crate::error::Result;
+use crate::field::FieldModule;
+use crate::model::StaticModel;
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct ViewScore {
@@ -40,28 +43,22 @@ pub fn quick_views(dataset: &Dataset) -> Vec<usize> {
     }
 }
 
-/// Renders `views` and scores them against their images (mean PSNR is the mean of per-view
-/// PSNRs, as the NeRF papers report).
-pub fn evaluate(t: &Trainer, views: &[usize], with_ssim: bool) -> EvalResult {
-    evaluate_saving(t, views, with_ssim, None).unwrap_or_else(|e| unreachable!("no images are written: {e}"))
-}
-
-/// [`evaluate`], also writing each view as `DIR/<index>.png`: ground truth beside the render.
-pub fn evaluate_saving(
-    t: &Trainer,
+/// Renders `views` of `dataset` with `model` and scores them against their images (mean PSNR is
+/// the mean of per-view PSNRs, as the NeRF papers report), optionally writing each view as
+/// `DIR/<index>.png`, ground truth beside the render. `step` and `train_seconds` are left for the
+/// caller.
+pub fn evaluate<F: FieldModule>(
+    model: &StaticModel<F>,
+    dataset: &Dataset,
     views: &[usize],
     with_ssim: bool,
     save: Option<&std::path::Path>,
-) -> nerf_data::error::Result<EvalResult> {
-    let mut result = score_views(&t.dataset, views, with_ssim, save, |v| {
-        let r = t
-            .model
-            .render_rays(&t.dataset.view_rays(v), &t.cfg, t.dataset.background, &t.device);
-        (r.rgb, r.samples_per_ray)
-    })?;
-    result.step = t.step;
-    result.train_seconds = t.elapsed;
-    Ok(result)
+    device: &Device,
+) -> Result<EvalResult> {
+    score_views(dataset, views, with_ssim, save, |v| {
+        let r = model.render_rays(&dataset.view_rays(v), dataset.background, device)?;
+        Ok((r.rgb, r.samples_per_ray))
+    })
 }
 
 /// Scores held-out views of `dataset` rendered by `render` (view index → RGB `[H·W·3]` and
@@ -72,14 +69,14 @@ pub fn score_views(
     views: &[usize],
     with_ssim: bool,
     save: Option<&std::path::Path>,
-    mut render: impl FnMut(usize) -> (Vec<f32>, f64),
-) -> nerf_data::error::Result<EvalResult> {
+    mut render: impl FnMut(usize) -> Result<(Vec<f32>, f64)>,
+) -> Result<EvalResult> {
     let start = Instant::now();
     let mut scores = Vec::new();
     let mut spr = 0.0;
     for &v in views {
         let view = &dataset.views[v];
-        let (rgb, samples_per_ray) = render(v);
+        let (rgb, samples_per_ray) = render(v)?;
         spr += samples_per_ray;
         let (w, h) = (view.image.width as usize, view.image.height as usize);
         if let Some(dir) = save {

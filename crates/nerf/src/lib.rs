@@ -1,12 +1,16 @@
-//! Static NeRF: fields, the rendering pipeline, training, evaluation and rendering.
+//! Static NeRF: fields (`field/`), sampling and the model (`renderer.rs`, `model.rs`), the
+//! optimiser step and checkpoints every model shares (`optimizer.rs`, `checkpoint.rs`), training
+//! (`trainer.rs`, `train_loop.rs`), evaluation (`eval.rs`), render paths (`render.rs`) and the CLI.
 
 pub mod checkpoint;
 pub mod cli;
 pub mod config;
+pub mod error;
 pub mod eval;
 pub mod field;
 pub mod logging;
 pub mod model;
+pub mod optimizer;
 pub mod plot;
 pub mod render;
 pub mod renderer;

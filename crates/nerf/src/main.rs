@@ -6,9 +6,11 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use nerf::cli::CommonTrainArgs;
 use nerf::config::TrainConfig;
+use nerf::error::{ModelError, Result};
+use nerf::model::StaticModel;
 use nerf::render::{FrameWriter, PathKind, default_path, path_cameras};
 use nerf::trainer::{CHECKPOINT, Trainer, load_dataset};
-use nerf_data::error::{DataError, Result};
+use nerf_data::error::DataError;
 use nerf_data::{LoadOptions, NdcMode};
 
 #[derive(Parser)]
@@ -53,7 +55,7 @@ enum Command {
         out: PathBuf,
         /// static, dynamic or static_video.
         #[arg(long, default_value = "static")]
-        preset: nerf_data::synth::Preset,
+        preset: nerf_synth::Preset,
         #[arg(long, default_value_t = 0)]
         seed: u64,
         /// Image width and height (default: the preset's).
@@ -170,7 +172,7 @@ fn run(cli: Cli) -> Result<()> {
             test_views,
             mono_disparity,
         } => {
-            let mut cfg = nerf_data::synth::SynthConfig::new(preset).with_seed(seed);
+            let mut cfg = nerf_synth::SynthConfig::new(preset).with_seed(seed);
             cfg.mono_disparity = mono_disparity;
             if let Some(s) = size {
                 cfg = cfg.with_size(s[0], s[1]);
@@ -180,7 +182,7 @@ fn run(cli: Cli) -> Result<()> {
                 cfg = cfg.with_views(f, t);
             }
             cfg.validate().map_err(|m| DataError::invalid(&out, m))?;
-            let summary = nerf_data::synth::generate(&cfg, &out)?;
+            let summary = nerf_synth::generate(&cfg, &out)?;
             println!(
                 "wrote {} scene to {}: {} train, {} test views, {} files",
                 preset,
@@ -199,7 +201,7 @@ fn train(args: TrainArgs) -> Result<()> {
     let run_dir = common.run_dir("");
     let mut trainer = if common.resume {
         if !run_dir.join(CHECKPOINT).exists() {
-            return Err(DataError::invalid(
+            return Err(ModelError::usage(
                 &run_dir,
                 "--resume: no checkpoint.bin in the run folder",
             ));
@@ -235,7 +237,7 @@ fn train(args: TrainArgs) -> Result<()> {
         let dataset = load_dataset(&cfg)?;
         cfg.adapt_to(&dataset);
         let cfg = nerf::config::apply_overrides(&cfg, &common.overrides)
-            .map_err(|m| DataError::invalid(&common.data, m))?;
+            .map_err(|m| ModelError::usage(&common.data, m))?;
         Trainer::new(cfg, dataset, &run_dir)?
     };
     trainer.train(true)?;
@@ -246,11 +248,20 @@ fn train(args: TrainArgs) -> Result<()> {
         run_dir.join(CHECKPOINT).display()
     );
     if !common.no_render {
-        let result = write_eval(&trainer, "test", false)?;
+        let run = Run {
+            cfg: trainer.cfg,
+            step: trainer.step,
+            elapsed: trainer.elapsed,
+            model: trainer.model,
+            dataset: trainer.dataset,
+            run_dir: trainer.run_dir,
+            device: trainer.device,
+        };
+        let result = write_eval(&run, "test", false)?;
         println!("mean_psnr {:.4}", result.mean_psnr);
-        let kind = default_path(&trainer.dataset);
+        let kind = default_path(&run.dataset);
         let out = run_dir.join("render");
-        render_path(&trainer, kind, 40, &out)?;
+        render_path(&run, kind, 40, &out)?;
         eprintln!(
             "rendered {} and psnr.png into {}",
             out.join("path.gif").display(),
@@ -260,7 +271,33 @@ fn train(args: TrainArgs) -> Result<()> {
     Ok(())
 }
 
-fn split_views(t: &Trainer, split: &str) -> Vec<usize> {
+/// A trained model and the dataset it is scored and rendered on (no optimiser state).
+struct Run {
+    cfg: TrainConfig,
+    step: usize,
+    elapsed: f64,
+    model: StaticModel,
+    dataset: nerf_data::Dataset,
+    run_dir: PathBuf,
+    device: burn::tensor::Device,
+}
+
+/// Loads a run's model from its checkpoint and its dataset for cameras and images.
+fn open_run(run_dir: &Path) -> Result<Run> {
+    let t = nerf::checkpoint::load_trained(run_dir)?;
+    let dataset = load_dataset(&t.state.config)?;
+    Ok(Run {
+        cfg: t.state.config,
+        step: t.state.step,
+        elapsed: t.state.elapsed,
+        model: t.model,
+        dataset,
+        run_dir: run_dir.to_path_buf(),
+        device: t.device,
+    })
+}
+
+fn split_views(t: &Run, split: &str) -> Vec<usize> {
     match split {
         "train" => t.dataset.train.clone(),
         "val" if !t.dataset.val.is_empty() => t.dataset.val.clone(),
@@ -268,10 +305,10 @@ fn split_views(t: &Trainer, split: &str) -> Vec<usize> {
     }
 }
 
-fn write_eval(t: &Trainer, split: &str, save_images: bool) -> Result<nerf::eval::EvalResult> {
+fn write_eval(t: &Run, split: &str, save_images: bool) -> Result<nerf::eval::EvalResult> {
     let views = split_views(t, split);
     if views.is_empty() {
-        return Err(DataError::invalid(
+        return Err(ModelError::usage(
             &t.cfg.data,
             format!("the dataset has no {split} views"),
         ));
@@ -280,8 +317,11 @@ fn write_eval(t: &Trainer, split: &str, save_images: bool) -> Result<nerf::eval:
     if save_images {
         std::fs::create_dir_all(&dir).map_err(|e| DataError::io(&dir, e))?;
     }
-    let mut result = nerf::eval::evaluate_saving(t, &views, true, save_images.then_some(dir.as_path()))?;
+    let save = save_images.then_some(dir.as_path());
+    let mut result = nerf::eval::evaluate(&t.model, &t.dataset, &views, true, save, &t.device)?;
     result.split = split.into();
+    result.step = t.step;
+    result.train_seconds = t.elapsed;
     let path = t.run_dir.join("eval.json");
     let json = serde_json::to_vec_pretty(&result).map_err(|e| DataError::invalid(&path, e.to_string()))?;
     nerf_data::image::write_atomic(&path, &json)?;
@@ -305,20 +345,18 @@ fn write_eval(t: &Trainer, split: &str, save_images: bool) -> Result<nerf::eval:
 }
 
 fn eval(run_dir: &Path, split: &str, save_images: bool) -> Result<()> {
-    let t = Trainer::resume(run_dir, |_| {})?;
+    let t = open_run(run_dir)?;
     let result = write_eval(&t, split, save_images)?;
     println!("mean_psnr {:.4}", result.mean_psnr);
     Ok(())
 }
 
-fn render_cameras(t: &Trainer, cameras: &[nerf_data::Camera], out: &Path, gif: &str) -> Result<()> {
+fn render_cameras(t: &Run, cameras: &[nerf_data::Camera], out: &Path, gif: &str) -> Result<()> {
     let mut writer = FrameWriter::new(out, None)?;
     let bar = indicatif::ProgressBar::new(cameras.len() as u64);
     for (k, cam) in cameras.iter().enumerate() {
         let rays = t.dataset.rays_for(cam, 0..cam.intrinsics.num_pixels() as u32);
-        let r = t
-            .model
-            .render_rays(&rays, &t.cfg, t.dataset.background, &t.device);
+        let r = t.model.render_rays(&rays, t.dataset.background, &t.device)?;
         writer.push(
             k,
             cam.intrinsics.width,
@@ -330,15 +368,15 @@ fn render_cameras(t: &Trainer, cameras: &[nerf_data::Camera], out: &Path, gif: &
         bar.inc(1);
     }
     bar.finish_and_clear();
-    writer.finish_gif(gif)
+    Ok(writer.finish_gif(gif)?)
 }
 
-fn render_path(t: &Trainer, kind: PathKind, frames: usize, out: &Path) -> Result<()> {
+fn render_path(t: &Run, kind: PathKind, frames: usize, out: &Path) -> Result<()> {
     render_cameras(t, &path_cameras(&t.dataset, kind, frames), out, "path.gif")
 }
 
 fn render(args: RenderArgs) -> Result<()> {
-    let t = Trainer::resume(&args.run_dir, |_| {})?;
+    let t = open_run(&args.run_dir)?;
     let out = args.out.unwrap_or_else(|| args.run_dir.join("render"));
     match args.cameras {
         Some(json) => {

@@ -1,37 +1,39 @@
-//! The trainable static model: its fields, the occupancy grid, and whole-image rendering.
+//! The static model: a field (and a proposal field for hierarchical sampling), the occupancy
+//! grid, the scene bounds and how samples are placed. It renders (training and inference) and
+//! refreshes its occupancy grid; it is saved and loaded by `checkpoint.rs`, trained by
+//! `trainer.rs`. Generic over the field: any [`Field`] that is a burn module works.
+
+use std::sync::Arc;
 
 use burn::module::Module;
-use burn::tensor::{Device, Tensor};
+use burn::tensor::Device;
+use nerf_core::encoding::HashGrid;
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::rays::Rays;
+use nerf_core::render::Background;
 use nerf_data::{Dataset, SceneKind};
 use rand::rngs::StdRng;
 
 use crate::config::{Preset, TrainConfig};
-use crate::field::{FastField, FastFieldConfig, VanillaField, VanillaFieldConfig, normalize_host};
-use crate::renderer::{self, Rendered, SceneBounds, tensor};
+use crate::error::{ModelError, read_back};
+use crate::field::{BaseField, FastFieldConfig, FieldModule, VanillaFieldConfig};
+use crate::renderer::{self, Pass, Rendered, Sampling, SceneBounds, tensor};
 
-/// NeRF's coarse and fine networks.
+/// The burn modules of a model (what the optimiser updates and checkpoints store).
 #[derive(Module, Debug)]
-pub struct VanillaPair {
-    pub coarse: VanillaField,
-    pub fine: VanillaField,
-}
-
-/// The burn modules of a preset (what the optimiser updates and checkpoints store).
-#[allow(clippy::large_enum_variant)] // one value per run; boxing would not pay for itself
-#[derive(Module, Debug)]
-pub enum Fields {
-    Fast(FastField),
-    Vanilla(VanillaPair),
+pub struct StaticFields<F: Module> {
+    pub field: F,
+    /// The coarse network of hierarchical sampling.
+    pub proposal: Option<F>,
 }
 
 /// Fields plus the non-learned state rendering needs.
 #[derive(Debug)]
-pub struct StaticModel {
-    pub fields: Fields,
+pub struct StaticModel<F: Module = BaseField> {
+    pub fields: StaticFields<F>,
     pub occupancy: Option<OccupancyGrid>,
     pub bounds: SceneBounds,
+    pub sampling: Sampling,
 }
 
 /// A rendered image on the host: `[H·W, 3]` colour, `[H·W]` depth and opacity.
@@ -54,62 +56,129 @@ pub fn scene_bounds(dataset: &Dataset) -> SceneBounds {
     }
 }
 
-impl StaticModel {
-    /// A freshly initialised model for `cfg` on `device`.
+/// The preset's field for `cfg`, over `aabb`, with `extra_outputs` raw extra outputs (NSFF's
+/// blend weight). MLP initialisation draws from the device's RNG: seed it first.
+pub fn base_field(
+    cfg: &TrainConfig,
+    aabb: [[f32; 3]; 2],
+    extra_outputs: usize,
+    device: &Device,
+) -> BaseField {
+    match cfg.preset {
+        Preset::Fast => BaseField::Fast(fast_config(cfg, aabb, extra_outputs).init(device, cfg.seed)),
+        Preset::Vanilla => BaseField::Vanilla(
+            VanillaFieldConfig::new()
+                .with_width(cfg.vanilla.width)
+                .with_depth(cfg.vanilla.depth)
+                .with_extra_outputs(extra_outputs)
+                .init(device),
+        ),
+    }
+}
+
+/// The fast field's configuration from the training config.
+pub fn fast_config(cfg: &TrainConfig, aabb: [[f32; 3]; 2], extra_outputs: usize) -> FastFieldConfig {
+    let f = &cfg.fast;
+    FastFieldConfig::new(f.grid.clone(), aabb)
+        .with_hidden(f.hidden)
+        .with_geo_features(f.geo_features)
+        .with_color_hidden(f.color_hidden)
+        .with_color_layers(f.color_layers)
+        .with_extra_outputs(extra_outputs)
+}
+
+impl StaticModel<BaseField> {
+    /// A freshly initialised model of `cfg`'s preset.
     pub fn new(cfg: &TrainConfig, bounds: SceneBounds, device: &Device) -> Self {
-        // MLP initialisation draws from the device's RNG; seeding it makes runs reproducible.
+        StaticModel::with_field(cfg, bounds, device, |cfg, bounds, device| {
+            base_field(cfg, bounds.aabb, 0, device)
+        })
+    }
+}
+
+/// Builds a model's field from the config (called once per field: the vanilla preset's
+/// proposal field is a second call).
+pub type FieldBuilder<F> = fn(&TrainConfig, &SceneBounds, &Device) -> F;
+
+impl<F: FieldModule> StaticModel<F> {
+    /// A freshly initialised model with fields made by `build`.
+    pub fn with_field(
+        cfg: &TrainConfig,
+        bounds: SceneBounds,
+        device: &Device,
+        build: FieldBuilder<F>,
+    ) -> Self {
         device.seed(cfg.seed);
-        let fields = match cfg.preset {
-            Preset::Fast => Fields::Fast(fast_config(cfg, 0).init(device, cfg.seed)),
-            Preset::Vanilla => {
-                let vc = VanillaFieldConfig::new()
-                    .with_width(cfg.vanilla.width)
-                    .with_depth(cfg.vanilla.depth);
-                Fields::Vanilla(VanillaPair {
-                    coarse: vc.init(device),
-                    fine: vc.init(device),
-                })
-            }
-        };
-        let occupancy = (cfg.preset == Preset::Fast && cfg.fast.use_occupancy)
+        let sampling = Sampling::from_config(cfg);
+        let proposal = matches!(sampling, Sampling::Hierarchical { .. }).then(|| build(cfg, &bounds, device));
+        let field = build(cfg, &bounds, device);
+        // Vanilla: coarse is built first, as before the field trait, so seeds give the same init.
+        let fields = StaticFields { field, proposal };
+        let occupancy = (matches!(sampling, Sampling::March { .. }) && cfg.fast.use_occupancy)
             .then(|| OccupancyGrid::new(cfg.fast.occupancy.clone(), bounds.aabb));
         StaticModel {
             fields,
             occupancy,
             bounds,
+            sampling,
         }
     }
 
-    /// Renders rays; with `rng` the samplers jitter (training).
+    /// Renders rays (differentiably on an autodiff device).
     pub fn render(
         &self,
         rays: &Rays,
-        cfg: &TrainConfig,
-        background: Option<&Tensor<2>>,
-        rng: Option<&mut StdRng>,
+        background: &Background,
+        pass: Pass<'_>,
         device: &Device,
-    ) -> Rendered {
-        match &self.fields {
-            Fields::Fast(f) => renderer::render_fast(
-                f,
-                self.occupancy.as_ref(),
+    ) -> Result<Rendered, ModelError> {
+        match (&self.sampling, &self.fields.proposal) {
+            (
+                Sampling::Hierarchical {
+                    coarse,
+                    fine,
+                    spacing,
+                    raw_noise_std,
+                },
+                Some(proposal),
+            ) => renderer::render_hierarchical(
+                proposal,
+                &self.fields.field,
+                (*coarse, *fine, *spacing, *raw_noise_std),
                 rays,
                 &self.bounds,
-                cfg,
                 background,
-                rng,
+                pass,
                 device,
             ),
-            Fields::Vanilla(p) => renderer::render_vanilla(
-                &p.coarse,
-                &p.fine,
-                rays,
-                &self.bounds,
-                cfg,
-                background,
-                rng,
-                device,
-            ),
+            (
+                Sampling::March {
+                    march,
+                    early_termination,
+                    train_early_termination,
+                    stop_eps,
+                },
+                _,
+            ) => {
+                let early = if pass.is_train() {
+                    *train_early_termination
+                } else {
+                    *early_termination
+                };
+                renderer::render_march(
+                    &self.fields.field,
+                    self.occupancy.as_ref(),
+                    (march, early, *stop_eps),
+                    rays,
+                    &self.bounds,
+                    background,
+                    pass,
+                    device,
+                )
+            }
+            (Sampling::Hierarchical { .. }, None) => {
+                unreachable!("hierarchical sampling always builds a proposal field")
+            }
         }
     }
 
@@ -117,19 +186,19 @@ impl StaticModel {
     pub fn render_rays(
         &self,
         rays: &Rays,
-        cfg: &TrainConfig,
         background: Option<[f32; 3]>,
         device: &Device,
-    ) -> ImageRender {
+    ) -> Result<ImageRender, ModelError> {
         let plain = device.clone().inner();
         let valid = StaticModel {
             fields: self.fields.valid(),
             occupancy: self.occupancy.clone(),
             bounds: self.bounds.clone(),
+            sampling: self.sampling.clone(),
         };
-        let chunk = match cfg.preset {
-            Preset::Fast => 8192,
-            Preset::Vanilla => 1024,
+        let chunk = match self.sampling {
+            Sampling::March { .. } => 8192,
+            Sampling::Hierarchical { .. } => 1024,
         };
         let mut out = ImageRender {
             rgb: Vec::new(),
@@ -138,61 +207,118 @@ impl StaticModel {
             samples_per_ray: 0.0,
         };
         let mut samples = 0usize;
+        let bg = Background::from_option(background);
         for start in (0..rays.len()).step_by(chunk) {
             let part = rays.slice(start..(start + chunk).min(rays.len()));
-            let bg = background.map(|c| tensor(c.repeat(part.len()).to_vec(), 3, &plain));
-            let r = valid.render(&part, cfg, bg.as_ref(), None, &plain);
+            let r = valid.render(&part, &bg, Pass::Infer, &plain)?;
             samples += r.samples;
-            let host = |t: Tensor<2>| t.into_data().try_into_vec_as::<f32>().unwrap_or_default();
-            out.rgb.extend(host(r.rgb));
-            out.depth.extend(host(r.depth));
-            out.opacity.extend(host(r.opacity));
+            out.rgb.extend(read_back(r.out.rgb, "rendered colour")?);
+            out.depth.extend(read_back(r.out.depth, "rendered depth")?);
+            out.opacity.extend(read_back(r.out.opacity, "rendered opacity")?);
         }
         out.samples_per_ray = samples as f64 / rays.len().max(1) as f64;
-        out
+        Ok(out)
     }
 
-    /// Refreshes the occupancy grid (fast preset) from the current densities.
-    pub fn update_occupancy(&mut self, step: usize, cfg: &TrainConfig, rng: &mut StdRng, device: &Device) {
-        let (Fields::Fast(field), Some(grid)) = (&self.fields, self.occupancy.as_mut()) else {
-            return;
+    /// Refreshes the occupancy grid from the current densities (marching only).
+    pub fn update_occupancy(
+        &mut self,
+        step: usize,
+        rng: &mut StdRng,
+        device: &Device,
+    ) -> Result<(), ModelError> {
+        let (Sampling::March { march, .. }, Some(grid)) = (&self.sampling, self.occupancy.as_mut()) else {
+            return Ok(());
         };
-        let field = field.valid();
+        let field = self.fields.field.valid();
         let plain = device.clone().inner();
-        let aabb = self.bounds.aabb;
+        let mut failed = None;
         let mut density = |p: &[f32]| -> Vec<f32> {
             let mut out = Vec::with_capacity(p.len() / 3);
             for chunk in p.chunks(3 * 65536) {
-                let x = tensor(normalize_host(chunk, aabb), 3, &plain);
-                out.extend(
-                    field
-                        .density(x)
-                        .into_data()
-                        .try_into_vec_as::<f32>()
-                        .unwrap_or_default(),
-                );
+                let sigma = field.density(tensor(chunk.to_vec(), 3, &plain), None).sigma;
+                match read_back(sigma, "occupancy density") {
+                    Ok(v) => out.extend(v),
+                    Err(e) => {
+                        failed = Some(e);
+                        out.resize(out.len() + chunk.len() / 3, 0.0);
+                    }
+                }
             }
             out
         };
-        grid.update(step, cfg.fast.march.step, rng, &mut density);
+        grid.update(step, march.step, rng, &mut density);
+        failed.map_or(Ok(()), Err)
     }
 
-    /// The hash grid of the fast preset.
-    pub fn grid(&self) -> Option<&std::sync::Arc<nerf_core::encoding::HashGrid>> {
-        match &self.fields {
-            Fields::Fast(f) => Some(&f.grid),
-            Fields::Vanilla(_) => None,
-        }
+    /// Host-side parameters of every field (hash tables), in a fixed order.
+    pub fn host_params(&self) -> Vec<Arc<HashGrid>> {
+        self.fields.host_params()
     }
 }
 
-/// The fast field's configuration from the training config (`extra_outputs` for NSFF reuse).
-pub fn fast_config(cfg: &TrainConfig, extra_outputs: usize) -> FastFieldConfig {
-    let f = &cfg.fast;
-    FastFieldConfig::new(f.grid.clone())
-        .with_hidden(f.hidden)
-        .with_geo_features(f.geo_features)
-        .with_color_hidden(f.color_hidden)
-        .with_color_layers(f.color_layers)
-        .with_extra_outputs(extra_outputs)
+impl<F: FieldModule> StaticFields<F> {
+    pub fn host_params(&self) -> Vec<Arc<HashGrid>> {
+        let mut out = self.field.host_params();
+        if let Some(p) = &self.proposal {
+            out.extend(p.host_params());
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nerf_data::{Camera, Intrinsics, Pose};
+
+    fn host(t: burn::tensor::Tensor<2>) -> Vec<f32> {
+        t.into_data().try_into_vec_as::<f32>().unwrap()
+    }
+
+    /// The differentiable render the trainer calls (autodiff device, whole batch) and the
+    /// inference render (`valid()` module, plain device, chunks) give the same pixels for the
+    /// same parameters and unjittered samples, for both presets.
+    #[test]
+    fn training_and_inference_renders_agree() {
+        let pose = Pose::look_at([0.4, -3.5, 1.0], [0.0; 3], [0.0, 0.0, 1.0]);
+        let camera = Camera::new(Intrinsics::centered(14.0, 12, 10), pose);
+        let rays = nerf_data::rays::camera_rays(&camera);
+        let bg = [0.2f32, 0.4, 0.6];
+        for preset in [Preset::Fast, Preset::Vanilla] {
+            let mut cfg = TrainConfig::new(preset, "unused".into(), Default::default());
+            cfg.vanilla.width = 32;
+            cfg.vanilla.depth = 3;
+            cfg.vanilla.coarse_samples = 16;
+            cfg.vanilla.fine_samples = 16;
+            let bounds = SceneBounds {
+                near: 2.0,
+                far: 6.0,
+                aabb: [[-1.5; 3], [1.5; 3]],
+                open_far: false,
+            };
+            let dev = Device::flex().autodiff();
+            let model = StaticModel::new(&cfg, bounds, &dev);
+            let train = model
+                .render(&rays, &Background::Color(bg), Pass::Infer, &dev)
+                .unwrap();
+            let infer = model.render_rays(&rays, Some(bg), &dev).unwrap();
+            let opacity = host(train.out.opacity.clone());
+            let mean = opacity.iter().sum::<f32>() / opacity.len() as f32;
+            assert!(
+                mean > 0.05,
+                "{preset:?}: the untrained field must absorb light ({mean})"
+            );
+            for (name, a, b) in [
+                ("rgb", host(train.out.rgb), infer.rgb),
+                ("depth", host(train.out.depth), infer.depth),
+                ("opacity", opacity, infer.opacity),
+            ] {
+                assert_eq!(a.len(), b.len(), "{preset:?} {name}");
+                for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+                    assert!((x - y).abs() <= 1e-5, "{preset:?} {name}[{i}]: {x} vs {y}");
+                }
+            }
+        }
+    }
 }

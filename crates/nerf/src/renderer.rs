@@ -1,20 +1,27 @@
-//! Renderers: rays → samples (sampler) → field queries → composited pixels.
+//! The static model's two ways to place samples, each ending in the shared render function:
+//! occupancy-grid marching with early termination (fast preset) and NeRF's hierarchical
+//! sampling with a proposal field (vanilla preset). Both work with any [`Field`].
 
-use burn::module::Module;
-use burn::tensor::{Device, Tensor, TensorData};
-use nerf_core::composite::{self, RayLayout};
+use burn::tensor::{Device, Tensor};
+use nerf_core::composite;
+use nerf_core::field::{Field, FieldQuery};
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::profile::span;
 use nerf_core::rays::Rays;
-use nerf_core::sampler::{self, RaySamples};
+use nerf_core::render::{Background, Component, RenderOptions, RenderOutput, render};
+use nerf_core::sampler::{self, MarchConfig, RaySamples, Spacing};
 use rand::Rng;
 use rand::rngs::StdRng;
+use serde::{Deserialize, Serialize};
 
-use crate::config::TrainConfig;
-use crate::field::{FastField, VanillaField, normalize_host};
+use crate::config::{Preset, TrainConfig};
+use crate::error::{ModelError, read_back};
+use crate::field::FieldModule;
+
+pub use nerf_core::render::host_tensor as tensor;
 
 /// Scene geometry the renderer needs from the dataset.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SceneBounds {
     pub near: f32,
     pub far: f32,
@@ -23,75 +30,108 @@ pub struct SceneBounds {
     pub open_far: bool,
 }
 
-/// Composited output for `R` rays.
+/// Training renders jitter their samples (and may add density noise); inference renders do not.
+pub enum Pass<'a> {
+    Train(&'a mut StdRng),
+    Infer,
+}
+
+impl Pass<'_> {
+    pub fn is_train(&self) -> bool {
+        matches!(self, Pass::Train(_))
+    }
+
+    pub fn rng(&mut self) -> Option<&mut StdRng> {
+        match self {
+            Pass::Train(rng) => Some(&mut **rng),
+            Pass::Infer => None,
+        }
+    }
+}
+
+/// Where samples go along a ray.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Sampling {
+    /// March through the occupancy grid (or the whole box without one), in fixed steps.
+    March {
+        march: MarchConfig,
+        /// Early ray termination when rendering / while training.
+        early_termination: bool,
+        train_early_termination: bool,
+        stop_eps: f32,
+    },
+    /// Stratified samples for the proposal field, then inverse-CDF samples from its weights for
+    /// the main field (NeRF's coarse and fine networks).
+    Hierarchical {
+        coarse: usize,
+        fine: usize,
+        spacing: Spacing,
+        /// Density noise while training (real scenes).
+        raw_noise_std: f32,
+    },
+}
+
+impl Sampling {
+    pub fn from_config(cfg: &TrainConfig) -> Self {
+        match cfg.preset {
+            Preset::Fast => Sampling::March {
+                march: cfg.fast.march.clone(),
+                early_termination: cfg.fast.early_termination,
+                train_early_termination: cfg.fast.train_early_termination,
+                stop_eps: cfg.fast.stop_eps,
+            },
+            Preset::Vanilla => Sampling::Hierarchical {
+                coarse: cfg.vanilla.coarse_samples,
+                fine: cfg.vanilla.fine_samples,
+                spacing: cfg.vanilla.spacing,
+                raw_noise_std: cfg.vanilla.raw_noise_std,
+            },
+        }
+    }
+}
+
+/// A render of `R` rays.
 #[derive(Clone, Debug)]
 pub struct Rendered {
-    /// `[R, 3]`, background included.
-    pub rgb: Tensor<2>,
-    /// `[R, 1]` expected ray parameter (depth, or NDC t) of the visible surface.
-    pub depth: Tensor<2>,
-    /// `[R, 1]` accumulated opacity.
-    pub opacity: Tensor<2>,
-    /// The coarse network's colour (vanilla preset), for its loss term.
+    /// The main field's pixels (rgb with background, depth, opacity).
+    pub out: RenderOutput,
+    /// The proposal field's colour (hierarchical sampling), for its loss term.
     pub coarse_rgb: Option<Tensor<2>>,
     /// Field evaluations that produced this result.
     pub samples: usize,
 }
 
-/// Host data → `[n, w]` tensor.
-pub fn tensor(data: Vec<f32>, w: usize, device: &Device) -> Tensor<2> {
-    let n = data.len() / w.max(1);
-    Tensor::from_data(TensorData::new(data, [n, w]), device)
-}
-
-/// Splits a composite output `[R, C + 1]` (colour, depth, opacity) and adds the background.
-fn finish(out: Tensor<2>, background: Option<&Tensor<2>>) -> (Tensor<2>, Tensor<2>, Tensor<2>) {
-    let r = out.dims()[0];
-    let rgb = out.clone().slice([0..r, 0..3]);
-    let depth = out.clone().slice([0..r, 3..4]);
-    let opacity = out.slice([0..r, 4..5]);
-    let rgb = match background {
-        Some(bg) => rgb + (opacity.clone().neg() + 1.0) * bg.clone(),
-        None => rgb,
-    };
-    (rgb, depth, opacity)
-}
-
-fn empty(rays: usize, device: &Device, background: Option<&Tensor<2>>) -> Rendered {
-    let zeros = |w| Tensor::<2>::zeros([rays, w], device);
-    Rendered {
-        rgb: background.cloned().unwrap_or_else(|| zeros(3)),
-        depth: zeros(1),
-        opacity: zeros(1),
-        coarse_rgb: None,
-        samples: 0,
+/// Densities of `[S, 3]` positions without building a graph.
+pub fn density_host<F: FieldModule>(
+    field: &F,
+    positions: &[f32],
+    device: &Device,
+) -> Result<Vec<f32>, ModelError> {
+    if positions.is_empty() {
+        return Ok(Vec::new());
     }
+    let plain = device.clone().inner();
+    let sigma = field
+        .valid()
+        .density(tensor(positions.to_vec(), 3, &plain), None)
+        .sigma;
+    read_back(sigma, "density")
 }
 
-/// Per-sample `[S, 4]` features: colour and the sample's t (its composite is the depth).
-fn colour_and_t(rgb: Tensor<2>, samples: &RaySamples, device: &Device) -> Tensor<2> {
-    Tensor::cat(vec![rgb, tensor(samples.t.clone(), 1, device)], 1)
-}
-
-/// Fast preset: occupancy-grid marching, optional early termination (densities from a no-grad
-/// pass), then one differentiable pass over the surviving samples.
+/// Occupancy marching: samples in the occupied cells, optionally cut where rays become opaque
+/// (densities from a no-grad pass), then one differentiable pass over the surviving samples.
 #[allow(clippy::too_many_arguments)]
-pub fn render_fast(
-    field: &FastField,
+pub fn render_march<F: FieldModule>(
+    field: &F,
     occupancy: Option<&OccupancyGrid>,
+    sampling: (&MarchConfig, bool, f32),
     rays: &Rays,
     bounds: &SceneBounds,
-    cfg: &TrainConfig,
-    background: Option<&Tensor<2>>,
-    rng: Option<&mut StdRng>,
+    background: &Background,
+    mut pass: Pass<'_>,
     device: &Device,
-) -> Rendered {
-    let s = &cfg.fast;
-    let early_termination = if rng.is_some() {
-        s.train_early_termination
-    } else {
-        s.early_termination
-    };
+) -> Result<Rendered, ModelError> {
+    let (march, early_termination, stop_eps) = sampling;
     let mut samples = span("march", || {
         sampler::march(
             rays,
@@ -99,148 +139,116 @@ pub fn render_fast(
             bounds.near,
             bounds.far,
             occupancy,
-            &s.march,
-            rng,
+            march,
+            pass.rng(),
         )
     });
-    let stop_eps = if early_termination { s.stop_eps } else { 0.0 };
+    let stop_eps = if early_termination { stop_eps } else { 0.0 };
     // Marching skips empty cells, so a ray's last sample need not lie at the far bound: it must
-    // not absorb the remaining light (`open_far` is for stratified sampling only).
-    let open_far = false;
+    // not absorb the remaining light.
+    let options = RenderOptions {
+        open_far: false,
+        stop_eps,
+    };
     if early_termination && samples.num_samples() > 0 {
         let sigma = span("early_stop_density", || {
-            density_host(field, &samples.positions(rays), bounds.aabb, device)
-        });
-        let alive = composite::alive(&sigma, &samples.layout(rays, open_far), stop_eps);
+            density_host(field, &samples.positions(rays), device)
+        })?;
+        let alive = composite::alive(&sigma, &samples.layout(rays, options.open_far), stop_eps);
         samples = samples.filter(&alive);
     }
-    if samples.num_samples() == 0 {
-        return empty(rays.len(), device, background);
-    }
-    let positions = normalize_host(&samples.positions(rays), bounds.aabb);
-    let dirs = samples.per_sample3(&rays.viewdirs());
-    let out = span("field_forward", || {
-        field.forward(tensor(positions, 3, device), &dirs)
-    });
-    let layout = samples.layout(rays, open_far);
-    let comp = span("composite", || {
-        composite::composite(
-            out.sigma,
-            colour_and_t(out.rgb, &samples, device),
-            None,
-            &layout,
-            stop_eps,
-        )
-    });
-    let (rgb, depth, opacity) = finish(comp, background);
-    Rendered {
-        rgb,
-        depth,
-        opacity,
+    let out = query_and_render(field, rays, &samples, None, background, options, device);
+    Ok(Rendered {
+        samples: out.samples,
+        out,
         coarse_rgb: None,
-        samples: samples.num_samples(),
-    }
+    })
 }
 
-/// Densities of `[S, 3]` world positions without building a graph.
-pub fn density_host(field: &FastField, positions: &[f32], aabb: [[f32; 3]; 2], device: &Device) -> Vec<f32> {
-    if positions.is_empty() {
-        return Vec::new();
-    }
-    let plain = device.clone().inner();
-    let field = field.valid();
-    let x = tensor(normalize_host(positions, aabb), 3, &plain);
-    field
-        .density(x)
-        .into_data()
-        .try_into_vec_as::<f32>()
-        .unwrap_or_default()
-}
-
-/// ReLU(raw + noise): nerf-pytorch's density activation, noise only while training.
-fn activate(raw: Tensor<2>, noise_std: f32, rng: Option<&mut StdRng>) -> Tensor<2> {
-    let raw = match rng {
-        Some(rng) if noise_std > 0.0 => {
-            let n = raw.dims()[0];
-            let noise: Vec<f32> = (0..n)
-                .map(|_| {
-                    // Box–Muller from two uniforms.
-                    let (u1, u2): (f32, f32) = (rng.random::<f32>().max(1e-12), rng.random());
-                    noise_std * (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
-                })
-                .collect();
-            raw.clone() + tensor(noise, 1, &raw.device())
-        }
-        _ => raw,
-    };
-    burn::tensor::activation::relu(raw)
-}
-
-fn query_vanilla(
-    field: &VanillaField,
+/// Queries `field` at `samples` and renders them as one component. `noise`: pre-activation
+/// density noise per sample.
+fn query_and_render<F: Field>(
+    field: &F,
     rays: &Rays,
     samples: &RaySamples,
-    layout: &RayLayout,
-    noise_std: f32,
-    rng: Option<&mut StdRng>,
+    noise: Option<Vec<f32>>,
+    background: &Background,
+    options: RenderOptions,
     device: &Device,
-) -> (Tensor<2>, Tensor<2>) {
+) -> RenderOutput {
+    if samples.num_samples() == 0 {
+        return render(rays, samples, &[], background, options, device);
+    }
     let dirs = samples.per_sample3(&rays.viewdirs());
-    let out = field.forward(tensor(samples.positions(rays), 3, device), &dirs);
-    let sigma = activate(out.sigma, noise_std, rng);
-    let comp = composite::composite(
-        sigma.clone(),
-        colour_and_t(out.rgb, samples, device),
-        None,
-        layout,
-        0.0,
-    );
-    (comp, sigma)
+    let mut query = FieldQuery::new(tensor(samples.positions(rays), 3, device), &dirs);
+    query.density_noise = noise.map(|n| tensor(n, 1, device));
+    let out = span("field_forward", || field.query(query));
+    span("composite", || {
+        render(
+            rays,
+            samples,
+            &[Component::new(out.sigma, out.rgb)],
+            background,
+            options,
+            device,
+        )
+    })
 }
 
-/// Vanilla preset: stratified coarse samples, inverse-CDF fine samples from the coarse weights,
-/// the fine network on the union.
+/// Gaussian noise for `n` samples (Box–Muller from two uniforms), or `None` when not training.
+fn density_noise(n: usize, std: f32, pass: &mut Pass<'_>) -> Option<Vec<f32>> {
+    let rng = pass.rng().filter(|_| std > 0.0)?;
+    Some(
+        (0..n)
+            .map(|_| {
+                let (u1, u2): (f32, f32) = (rng.random::<f32>().max(1e-12), rng.random());
+                std * (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
+            })
+            .collect(),
+    )
+}
+
+/// Hierarchical sampling: the proposal field on stratified samples, the main field on the union
+/// of those and inverse-CDF samples drawn from the proposal's weights.
 #[allow(clippy::too_many_arguments)]
-pub fn render_vanilla(
-    coarse: &VanillaField,
-    fine: &VanillaField,
+pub fn render_hierarchical<F: Field>(
+    proposal: &F,
+    field: &F,
+    (coarse, fine, spacing, noise_std): (usize, usize, Spacing, f32),
     rays: &Rays,
     bounds: &SceneBounds,
-    cfg: &TrainConfig,
-    background: Option<&Tensor<2>>,
-    mut rng: Option<&mut StdRng>,
+    background: &Background,
+    mut pass: Pass<'_>,
     device: &Device,
-) -> Rendered {
-    let v = &cfg.vanilla;
+) -> Result<Rendered, ModelError> {
     let n = rays.len();
+    let options = RenderOptions {
+        open_far: bounds.open_far,
+        stop_eps: 0.0,
+    };
     let (near, far) = (vec![bounds.near; n], vec![bounds.far; n]);
-    let coarse_samples = sampler::stratified(&near, &far, v.coarse_samples, v.spacing, rng.as_deref_mut());
-    let layout_c = coarse_samples.layout(rays, bounds.open_far);
-    let (comp_c, sigma_c) = query_vanilla(
-        coarse,
+    let coarse_samples = sampler::stratified(&near, &far, coarse, spacing, pass.rng());
+    let noise = density_noise(coarse_samples.num_samples(), noise_std, &mut pass);
+    let dirs = coarse_samples.per_sample3(&rays.viewdirs());
+    let mut query = FieldQuery::new(tensor(coarse_samples.positions(rays), 3, device), &dirs);
+    query.density_noise = noise.map(|v| tensor(v, 1, device));
+    let out_c = proposal.query(query);
+    let sigma_host = read_back(out_c.sigma.clone(), "proposal density")?;
+    let comp_c = render(
         rays,
         &coarse_samples,
-        &layout_c,
-        v.raw_noise_std,
-        rng.as_deref_mut(),
+        &[Component::new(out_c.sigma, out_c.rgb)],
+        background,
+        options,
         device,
     );
-    let sigma_host = sigma_c
-        .inner()
-        .into_data()
-        .try_into_vec_as::<f32>()
-        .unwrap_or_default();
-    let weights = composite::weights(&sigma_host, &layout_c, 0.0);
-    let fine_samples = sampler::sample_pdf(&coarse_samples, &weights, v.fine_samples, rng.as_deref_mut());
-    let layout_f = fine_samples.layout(rays, bounds.open_far);
-    let (comp_f, _) = query_vanilla(fine, rays, &fine_samples, &layout_f, v.raw_noise_std, rng, device);
-    let (coarse_rgb, _, _) = finish(comp_c, background);
-    let (rgb, depth, opacity) = finish(comp_f, background);
-    Rendered {
-        rgb,
-        depth,
-        opacity,
-        coarse_rgb: Some(coarse_rgb),
+    let weights = composite::weights(&sigma_host, &comp_c.layout, 0.0);
+    let fine_samples = sampler::sample_pdf(&coarse_samples, &weights, fine, pass.rng());
+    let noise = density_noise(fine_samples.num_samples(), noise_std, &mut pass);
+    let out = query_and_render(field, rays, &fine_samples, noise, background, options, device);
+    Ok(Rendered {
+        out,
+        coarse_rgb: Some(comp_c.rgb),
         samples: coarse_samples.num_samples() + fine_samples.num_samples(),
-    }
+    })
 }

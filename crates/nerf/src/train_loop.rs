@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use nerf_data::error::Result;
+use crate::error::Result;
 
 use crate::config::TrainConfig;
 use crate::logging::{MetricsLog, MetricsRecord, Progress};
@@ -33,8 +33,8 @@ pub trait Trainable {
     /// Seconds of training so far (evaluation pauses excluded).
     fn elapsed(&self) -> f64;
     fn add_elapsed(&mut self, secs: f64);
-    /// One optimisation step; `None` when the loss was not finite (step skipped).
-    fn train_step(&mut self) -> Option<StepStats>;
+    /// One optimisation step; `Ok(None)` when the loss was not finite (step skipped).
+    fn train_step(&mut self) -> Result<Option<StepStats>>;
     /// Writes the checkpoint atomically.
     fn save(&self) -> Result<()>;
     /// Restores the last checkpoint (or the initial state when there is none).
@@ -66,7 +66,7 @@ pub fn train(t: &mut impl Trainable, header: &str, show_progress: bool) -> Resul
     let mut last_print = Instant::now();
     while t.step() < cfg.steps && cfg.time_budget.is_none_or(|b| t.elapsed() < b) {
         let t0 = Instant::now();
-        let stats = t.train_step();
+        let stats = t.train_step()?;
         let dt = t0.elapsed().as_secs_f64();
         t.add_elapsed(dt);
         let Some(stats) = stats else {
@@ -140,5 +140,8 @@ pub fn train(t: &mut impl Trainable, header: &str, show_progress: bool) -> Resul
         eprint!("{}", nerf_core::profile::report());
     }
     t.save()?;
-    crate::plot::training_curve(&run_dir.join(METRICS), &run_dir.join("psnr.png"))
+    Ok(crate::plot::training_curve(
+        &run_dir.join(METRICS),
+        &run_dir.join("psnr.png"),
+    )?)
 }

@@ -3,14 +3,16 @@
 use std::path::Path;
 
 use burn::module::Module;
-
+use burn::tensor::Device;
+use nerf::error::{Result, read_back};
 use nerf::eval::{EvalResult, score_views};
-use nerf_data::error::Result;
+use nerf_data::Dataset;
 use nerf_data::math::{dot, norm, normalize, sub};
 
 use crate::config::TimeInterp;
+use crate::field::FLOW_NEXT;
+use crate::model::NsffModel;
 use crate::render::{HostRender, render_direct, render_splat};
-use crate::trainer::NsffTrainer;
 
 pub use nerf::eval::quick_views;
 
@@ -30,82 +32,70 @@ pub fn frame_position(times: &[f32], t: f32) -> f32 {
 }
 
 /// Renders a camera at a normalised time. Times on a training frame render directly; times
-/// between frames use the configured interpolation (NSFF's splatting by default).
-pub fn render_at(t: &NsffTrainer, camera: &nerf_data::Camera, time: f32) -> HostRender {
-    let times = &t.video.times;
+/// between frames use the model's time interpolation.
+pub fn render_at(
+    model: &NsffModel,
+    dataset: &Dataset,
+    camera: &nerf_data::Camera,
+    time: f32,
+    device: &Device,
+) -> Result<HostRender> {
+    let times = &model.times;
     let tau = frame_position(times, time);
     let on_frame = (tau - tau.round()).abs() < 1e-4;
-    let ds = &t.video.dataset;
-    if on_frame || t.cfg.time_interp == TimeInterp::Direct || !t.has_dynamic() {
-        let rays = ds.rays_for(camera, 0..camera.intrinsics.num_pixels() as u32);
-        let time = if on_frame {
-            times[tau.round() as usize]
-        } else {
-            time
-        };
-        let mut out = HostRender::default();
-        for start in (0..rays.len()).step_by(4096) {
-            let part = rays.slice(start..(start + 4096).min(rays.len()));
-            let r = render_direct(
-                &t.fields,
-                &part,
-                time,
-                &t.cfg,
-                &t.bounds,
-                t.occupancy.as_ref(),
-                ds.background,
-                &t.device,
-            );
-            out.rgb.extend(r.rgb);
-            out.depth.extend(r.depth);
-            out.opacity.extend(r.opacity);
-            out.dynamic_share.extend(r.dynamic_share);
-            out.flow_magnitude.extend(r.flow_magnitude);
-            out.samples_per_ray += r.samples_per_ray * part.len() as f64;
-            out.dynamic_per_ray += r.dynamic_per_ray * part.len() as f64;
-        }
-        out.samples_per_ray /= rays.len().max(1) as f64;
-        out.dynamic_per_ray /= rays.len().max(1) as f64;
-        out
-    } else {
-        render_splat(
-            &t.fields,
-            ds,
-            camera,
-            tau,
-            times,
-            &t.cfg,
-            &t.bounds,
-            t.occupancy.as_ref(),
-            &t.device,
-        )
+    if !(on_frame || model.settings.time_interp == TimeInterp::Direct || !model.has_dynamic()) {
+        return render_splat(model, dataset, camera, tau, device);
     }
+    let rays = dataset.rays_for(camera, 0..camera.intrinsics.num_pixels() as u32);
+    let time = if on_frame {
+        times[tau.round() as usize]
+    } else {
+        time
+    };
+    let mut out = HostRender::default();
+    for start in (0..rays.len()).step_by(4096) {
+        let part = rays.slice(start..(start + 4096).min(rays.len()));
+        let r = render_direct(model, &part, time, dataset.background, device)?;
+        out.rgb.extend(r.rgb);
+        out.depth.extend(r.depth);
+        out.opacity.extend(r.opacity);
+        out.dynamic_share.extend(r.dynamic_share);
+        out.flow_magnitude.extend(r.flow_magnitude);
+        out.samples_per_ray += r.samples_per_ray * part.len() as f64;
+        out.dynamic_per_ray += r.dynamic_per_ray * part.len() as f64;
+    }
+    out.samples_per_ray /= rays.len().max(1) as f64;
+    out.dynamic_per_ray /= rays.len().max(1) as f64;
+    Ok(out)
 }
 
 /// Scores held-out views (each with its own camera and time), optionally saving
-/// ground truth | render pairs into `save`.
+/// ground truth | render pairs into `save`. `step` and `train_seconds` are left for the caller.
 pub fn evaluate(
-    t: &NsffTrainer,
+    model: &NsffModel,
+    dataset: &Dataset,
     views: &[usize],
     with_ssim: bool,
     save: Option<&Path>,
+    device: &Device,
 ) -> Result<EvalResult> {
-    Ok(evaluate_with_depth(t, views, with_ssim, save)?.0)
+    Ok(evaluate_with_depth(model, dataset, views, with_ssim, save, device)?.0)
 }
 
 /// [`evaluate`], also returning each view's rendered depth (`[H*W]`, Σw·t over the opacity,
 /// camera depth for Euclidean scenes).
 pub fn evaluate_with_depth(
-    t: &NsffTrainer,
+    model: &NsffModel,
+    dataset: &Dataset,
     views: &[usize],
     with_ssim: bool,
     save: Option<&Path>,
+    device: &Device,
 ) -> Result<(EvalResult, Vec<Vec<f32>>)> {
-    let ds = &t.video.dataset;
     let mut depths = Vec::with_capacity(views.len());
-    let mut result = score_views(ds, views, with_ssim, save, |v| {
-        let view = &ds.views[v];
-        let r = render_at(t, &view.camera, view.time.unwrap_or(0.0));
+    let result = score_views(dataset, views, with_ssim, save, |v| {
+        let view = &dataset.views[v];
+        let r = render_at(model, dataset, &view.camera, view.time.unwrap_or(0.0), device)?;
         depths.push(
             r.depth
                 .iter()
@@ -113,10 +103,8 @@ pub fn evaluate_with_depth(
                 .map(|(d, a)| d / a.max(1e-3))
                 .collect(),
         );
-        (r.rgb, r.samples_per_ray)
+        Ok((r.rgb, r.samples_per_ray))
     })?;
-    result.step = t.step;
-    result.train_seconds = t.elapsed;
     Ok((result, depths))
 }
 
@@ -134,19 +122,18 @@ pub struct DepthError {
 /// `gt/<view name>_depth.npy` under the dataset folder (written by `nerf synth`; 0 where the
 /// pixel sees background, skipped). `None` when no view has a ground-truth file or for NDC
 /// scenes, whose ray parameter is not a camera depth.
-pub fn depth_error(t: &NsffTrainer, views: &[usize], depths: &[Vec<f32>]) -> Result<Option<DepthError>> {
-    let ds = &t.video.dataset;
+pub fn depth_error(
+    data: &Path,
+    ds: &Dataset,
+    views: &[usize],
+    depths: &[Vec<f32>],
+) -> Result<Option<DepthError>> {
     if ds.ndc.is_some() {
         return Ok(None);
     }
     let (mut abs, mut rel) = (0.0f64, Vec::new());
     for (&v, depth) in views.iter().zip(depths) {
-        let path = t
-            .cfg
-            .base
-            .data
-            .join("gt")
-            .join(format!("{}_depth.npy", ds.views[v].name));
+        let path = data.join("gt").join(format!("{}_depth.npy", ds.views[v].name));
         if !path.is_file() {
             continue;
         }
@@ -193,24 +180,29 @@ pub struct SceneFlowError {
 /// surface point with the object's displacement to the next frame's time. `None` without a
 /// dynamic field, for NDC scenes, or when no ray hits a moving object.
 pub fn scene_flow_error(
-    t: &NsffTrainer,
-    scene: &nerf_data::synth::Scene,
+    model: &NsffModel,
+    ds: &Dataset,
+    frames: &[usize],
+    scene: &nerf_synth::Scene,
     stride: usize,
-) -> Option<SceneFlowError> {
-    let dynamic = t.fields.dynamic.as_ref()?.valid();
-    let ds = &t.video.dataset;
+    device: &Device,
+) -> Result<Option<SceneFlowError>> {
+    let Some(dynamic) = model.fields.dynamic.as_ref().map(|d| d.valid()) else {
+        return Ok(None);
+    };
     if ds.ndc.is_some() {
-        return None;
+        return Ok(None);
     }
-    let plain = t.device.clone().inner();
+    let plain = device.clone().inner();
+    let times = &model.times;
     let moving = scene.moving_objects();
     let (mut sum, mut zero, mut n) = (0.0f64, 0.0f64, 0usize);
     let (mut length, mut cosine) = (0.0f64, 0.0f64);
     let (mut pix, mut pix_zero, mut n_pix) = (0.0f64, 0.0f64, 0usize);
-    for k in 0..t.video.frames.len().saturating_sub(1) {
-        let (t0, t1) = (t.video.times[k], t.video.times[k + 1]);
-        let camera = &ds.views[t.video.frames[k]].camera;
-        let next_camera = &ds.views[t.video.frames[k + 1]].camera;
+    for k in 0..frames.len().saturating_sub(1) {
+        let (t0, t1) = (times[k], times[k + 1]);
+        let camera = &ds.views[frames[k]].camera;
+        let next_camera = &ds.views[frames[k + 1]].camera;
         let pixels = (0..camera.intrinsics.num_pixels() as u32).step_by(stride.max(1));
         let rays = nerf_data::rays::pixel_rays(camera, pixels);
         let (mut points, mut truth, mut dirs) = (Vec::new(), Vec::new(), Vec::new());
@@ -231,19 +223,8 @@ pub fn scene_flow_error(
         if truth.is_empty() {
             continue;
         }
-        let out = crate::model::query_dynamic(
-            &dynamic,
-            nerf::renderer::tensor(points, 3, &plain),
-            t0,
-            &dirs,
-            t.bounds.aabb,
-            t.cfg.flow_scale,
-        );
-        let pred = out
-            .flow_next
-            .into_data()
-            .try_into_vec_as::<f32>()
-            .unwrap_or_default();
+        let out = crate::model::query_dynamic(&dynamic, nerf::renderer::tensor(points, 3, &plain), t0, &dirs);
+        let pred = read_back(out.extras.expect(FLOW_NEXT), "scene flow")?;
         for (i, g) in truth.iter().enumerate() {
             let p: [f64; 3] = std::array::from_fn(|a| pred[3 * i + a] as f64);
             let (lp, lg) = (norm(p), norm(*g));
@@ -263,7 +244,7 @@ pub fn scene_flow_error(
             n += 1;
         }
     }
-    (n > 0).then(|| SceneFlowError {
+    Ok((n > 0).then(|| SceneFlowError {
         epe: sum / n as f64,
         zero_motion_epe: zero / n as f64,
         predicted_length: length / n as f64,
@@ -271,5 +252,5 @@ pub fn scene_flow_error(
         pixel_epe: pix / n_pix.max(1) as f64,
         pixel_zero_motion_epe: pix_zero / n_pix.max(1) as f64,
         points: n,
-    })
+    }))
 }

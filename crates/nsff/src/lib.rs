@@ -1,9 +1,13 @@
 //! Neural Scene Flow Fields: a static field plus a time-conditioned dynamic field with 3-D scene
 //! flow and disocclusion weights, trained from one moving camera's video. Reuses the static
-//! pipeline (`nerf`): its fields, compositing, trainer bookkeeping and renders.
+//! pipeline (`nerf`): its fields, the shared render function, optimiser step, checkpoint parts,
+//! training loop and evaluation. `field.rs` defines the two fields, `model.rs` the model,
+//! `render.rs` space-time rendering, `losses.rs` the loss terms, `trainer.rs` the training step.
 
+pub mod checkpoint;
 pub mod config;
 pub mod eval;
+pub mod field;
 pub mod geometry;
 pub mod losses;
 pub mod model;

@@ -1,7 +1,15 @@
-//! Loss helpers (NSFF's weighted means: Σ m·err / (Σ m·C + 1e-8), the mask broadcast over the
-//! C channels).
+//! NSFF's loss terms (method.md §4.6), each a function of tensors with its formula and shapes.
+//! The training step (`trainer.rs`) renders and calls them; their weights are `LossWeights`.
+//! Weighted means follow NSFF: Σ m·err / (Σ m·C + 1e-8), the mask broadcast over the C channels.
 
-use burn::tensor::Tensor;
+use burn::tensor::{Int, Tensor, TensorData};
+use nerf::error::{ModelError, read_back};
+use nerf::renderer::tensor;
+use nerf_core::composite::RayLayout;
+use nerf_core::sampler::RaySamples;
+use nerf_data::{Camera, Ndc};
+
+use crate::geometry;
 
 pub fn mse(a: Tensor<2>, b: Tensor<2>) -> Tensor<1> {
     (a - b).powi_scalar(2).mean()
@@ -32,10 +40,14 @@ pub fn entropy(b: Tensor<2>) -> Tensor<1> {
 /// constant (it is one sample's value: a shift, whose gradient the mean-centred spread carries
 /// anyway); the spread keeps its gradient, so shrinking the prediction does not lower the loss.
 /// `None` when either side is constant (nothing to match).
-pub fn scale_shift_invariant(pred: Tensor<2>, target: &[f32]) -> Option<Tensor<1>> {
-    let (t_med, t_spread) = median_spread(target)?;
-    let pred_host = pred.clone().inner().into_data().try_into_vec_as::<f32>().ok()?;
-    let (p_med, _) = median_spread(&pred_host)?;
+pub fn scale_shift_invariant(pred: Tensor<2>, target: &[f32]) -> Result<Option<Tensor<1>>, ModelError> {
+    let Some((t_med, t_spread)) = median_spread(target) else {
+        return Ok(None);
+    };
+    let pred_host = read_back(pred.clone().inner(), "rendered disparity")?;
+    let Some((p_med, _)) = median_spread(&pred_host) else {
+        return Ok(None);
+    };
     let dev = pred.device();
     let n = target.len();
     let t_norm: Vec<f32> = target
@@ -45,7 +57,151 @@ pub fn scale_shift_invariant(pred: Tensor<2>, target: &[f32]) -> Option<Tensor<1
     let t_norm = Tensor::<1>::from_data(burn::tensor::TensorData::new(t_norm, [n]), &dev).reshape([n, 1]);
     let centred = pred - p_med as f32;
     let spread = centred.clone().abs().mean().reshape([1, 1]) + 1e-8;
-    Some(mse(centred / spread, t_norm))
+    Ok(Some(mse(centred / spread, t_norm)))
+}
+
+/// Cycle consistency of the scene flow: the flow back from the warped point, `back` `[S, 3]`,
+/// should undo the flow that got there, `flow` `[S, 3]`, where the point is not disoccluded:
+/// Σ (1 − p)·|flow + back| / (Σ (1 − p)·3), `prob` `[S, 1]`.
+pub fn cycle(flow: Tensor<2>, back: Tensor<2>, prob: Tensor<2>) -> Tensor<1> {
+    wmae(flow, back.neg(), prob.neg() + 1.0)
+}
+
+/// The projected scene flow against 2-D optical flow (NSFF's L_geo): the flowed surface point of
+/// each ray, Σ w·(x + f) over the ray's opacity (`flowed_sum` `[R, 3]`, `opacity` `[R, 1]`),
+/// converted from NDC when `ndc`, projected into the neighbouring frame's `camera`, against
+/// `target_uv` (`R·2`: pixel centre + optical flow), weighted by `mask` (`R`: the flow's
+/// consistency mask) times the ray's opacity. Unnormalised, a ray that is partly transparent
+/// (white background, early training) would project its point towards the world origin, and the
+/// flow would learn to undo that instead of the motion; such rays count as much as they are opaque.
+pub fn optical_flow(
+    flowed_sum: Tensor<2>,
+    opacity: Tensor<2>,
+    ndc: Option<&Ndc>,
+    camera: &Camera,
+    target_uv: Vec<f32>,
+    mut mask: Vec<f32>,
+) -> Result<Tensor<1>, ModelError> {
+    let dev = flowed_sum.device();
+    for (m, a) in mask
+        .iter_mut()
+        .zip(read_back(opacity.clone().inner(), "opacity")?)
+    {
+        *m *= a.clamp(0.0, 1.0);
+    }
+    let point = flowed_sum / opacity.clamp_min(1e-3);
+    let world = match ndc {
+        Some(ndc) => geometry::ndc_to_world(point, ndc),
+        None => point,
+    };
+    let uv = geometry::project(world, camera, &dev);
+    Ok(wmae(uv, tensor(target_uv, 2, &dev), tensor(mask, 1, &dev)))
+}
+
+/// NSFF's small-flow prior: ½(mean|f_next| + mean|f_prev|), flows `[S, 3]`.
+pub fn min_flow(flow_next: Tensor<2>, flow_prev: Tensor<2>) -> Tensor<1> {
+    (flow_next.abs().mean() + flow_prev.abs().mean()) * 0.5
+}
+
+/// Temporal smoothness: ½ mean ‖f_next + f_prev‖² (constant velocity), Euclidean flows `[S, 3]`.
+pub fn temporal_smoothness(flow_next: Tensor<2>, flow_prev: Tensor<2>) -> Tensor<1> {
+    (flow_next + flow_prev).powi_scalar(2).sum_dim(1).mean() * 0.5
+}
+
+/// Spatial smoothness: mean|f_a − f_b| over pairs (a, b) of neighbouring samples on a ray, for
+/// both flows (`[S, 3]`, Euclidean); `None` without pairs.
+pub fn spatial_smoothness(
+    flow_next: Tensor<2>,
+    flow_prev: Tensor<2>,
+    pairs: &(Vec<i32>, Vec<i32>),
+) -> Option<Tensor<1>> {
+    let n = pairs.0.len();
+    if n == 0 {
+        return None;
+    }
+    let dev = flow_next.device();
+    let ia = Tensor::<1, Int>::from_data(TensorData::new(pairs.0.clone(), [n]), &dev);
+    let ib = Tensor::<1, Int>::from_data(TensorData::new(pairs.1.clone(), [n]), &dev);
+    let diff = |f: Tensor<2>| {
+        (f.clone().select(0, ia.clone()) - f.select(0, ib.clone()))
+            .abs()
+            .mean()
+    };
+    Some(diff(flow_next) + diff(flow_prev))
+}
+
+/// Index pairs (s, s + 1) of neighbouring samples on the same ray, over the first `frac` of each
+/// ray's samples (NSFF skips the far end, where NDC warps stretch).
+pub fn adjacent_pairs(samples: &RaySamples, frac: f32) -> (Vec<i32>, Vec<i32>) {
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for r in 0..samples.num_rays() {
+        let range = samples.range(r);
+        let keep = ((range.len() as f32 * frac) as usize).max(1);
+        for s in range.start..(range.start + keep).min(range.end).saturating_sub(1) {
+            a.push(s as i32);
+            b.push(s as i32 + 1);
+        }
+    }
+    (a, b)
+}
+
+/// Transmittance below which a sample counts as hidden. The visible surface itself spans a
+/// few samples over which T falls from 1 to 0; weighting by (1 − T) penalised its back half.
+pub const HIDDEN_BELOW_T: f32 = 0.05;
+
+/// Hidden dynamic optical depth: Σ_rays Σ_s h_s·b_s·g_s·σ_dy,s / R, with h_s the host weights of
+/// [`hidden_weights`] (no gradient) through the blended density. Dynamic density that this
+/// frame's camera cannot see at this time (behind what the combined render shows) is constrained
+/// by nothing but this term: without it the dynamic field fills the space behind a moving object
+/// with whatever its MLP makes up, and novel views look into it. The penalty reaches the density
+/// and the time gate, not b_s: b_s is time-independent, and points hidden at this time are the
+/// object's visible surface at others. All inputs `[S, 1]`.
+pub fn hidden_dynamic_depth(
+    sigma_st: &Tensor<2>,
+    blend_s: &Tensor<2>,
+    sigma_dy: Tensor<2>,
+    gate: Tensor<2>,
+    layout: &RayLayout,
+) -> Result<Tensor<1>, ModelError> {
+    let host = |t: &Tensor<2>, what| read_back(t.clone().inner(), what);
+    let b_s = host(blend_s, "blend weight")?;
+    let blend: Vec<f32> = b_s
+        .iter()
+        .zip(host(&gate, "time gate")?)
+        .map(|(b, g)| b * g)
+        .collect();
+    let hidden = hidden_weights(
+        &host(sigma_st, "static density")?,
+        &host(&sigma_dy, "dynamic density")?,
+        &blend,
+        layout,
+    );
+    let fixed: Vec<f32> = b_s.iter().zip(hidden).map(|(b, h)| b * h).collect();
+    let dev = sigma_dy.device();
+    Ok((gate * sigma_dy * tensor(fixed, 1, &dev)).sum() / layout.num_rays() as f32)
+}
+
+/// Per sample, δ·max(0, 1 − T/T_h): its interval where it lies behind the combined render's
+/// visible surface (T = transmittance before the sample through the blended density
+/// (1 − b)·σ_st + b·σ_dy, T_h = [`HIDDEN_BELOW_T`]), so that Σ weight·b·σ_dy is the ray's hidden
+/// dynamic optical depth. Host values: `sigma_st`, `sigma_dy`, `blend` per sample.
+pub fn hidden_weights(sigma_st: &[f32], sigma_dy: &[f32], blend: &[f32], layout: &RayLayout) -> Vec<f32> {
+    let mut out = vec![0.0f32; sigma_st.len()];
+    for r in 0..layout.num_rays() {
+        let mut optical = 0.0f32;
+        for i in layout.offsets[r] as usize..layout.offsets[r + 1] as usize {
+            let (b, delta) = (blend[i], layout.deltas[i]);
+            out[i] = (1.0 - (-optical).exp() / HIDDEN_BELOW_T).max(0.0) * delta;
+            optical += ((1.0 - b) * sigma_st[i] + b * sigma_dy[i]).max(0.0) * delta;
+        }
+    }
+    out
+}
+
+/// Dynamic sparsity: the mean blended dynamic optical depth per march step, mean(b_s·g·σ_dy)·step,
+/// at random points (all `[P, 1]`).
+pub fn sparsity(blend_s: Tensor<2>, gate: Tensor<2>, sigma_dy: Tensor<2>, step: f32) -> Tensor<1> {
+    (blend_s * gate * sigma_dy).mean() * step
 }
 
 /// Median (the lower middle value, as torch.median) and mean absolute deviation from it, in
@@ -133,6 +289,7 @@ mod tests {
         };
         let loss = |p: &[f32], t: &[f32]| -> f64 {
             scale_shift_invariant(t2(p, 1, &dev), t)
+                .unwrap()
                 .expect("non-constant inputs")
                 .into_scalar::<f32>() as f64
         };
@@ -150,13 +307,19 @@ mod tests {
         let fit: Vec<f32> = target.iter().map(|&v| 0.2 * v + 0.05).collect();
         assert!(loss(&fit, &target) < 1e-10);
         // Constant sides have nothing to match.
-        assert!(scale_shift_invariant(t2(&pred, 1, &dev), &[0.5; 7]).is_none());
+        assert!(
+            scale_shift_invariant(t2(&pred, 1, &dev), &[0.5; 7])
+                .unwrap()
+                .is_none()
+        );
         // Gradient against central differences of the f64 reference (the median element is
         // held constant in the loss, so perturb the others only).
         let autodiff = Device::flex().autodiff();
         let p = Tensor::<2>::from_data(burn::tensor::TensorData::new(pred.to_vec(), [7, 1]), &autodiff)
             .require_grad();
-        let l = scale_shift_invariant(p.clone(), &target).expect("non-constant inputs");
+        let l = scale_shift_invariant(p.clone(), &target)
+            .unwrap()
+            .expect("non-constant inputs");
         let grads = l.backward();
         let g: Vec<f32> = p
             .grad(&grads)
@@ -177,5 +340,39 @@ mod tests {
                 g[i]
             );
         }
+    }
+
+    /// The hidden weights against transmittance recomputed in f64 from its definition,
+    /// T_i = exp(−Σ_{j<i} σ_j δ_j) with σ = (1 − b)·σ_st + b·σ_dy.
+    #[test]
+    fn hidden_weights_follow_the_blended_transmittance() {
+        // Two rays: 3 samples, the last partly hidden (T ≈ 0.03), then 4 with an opaque static
+        // wall at the second sample.
+        let sigma_st = [0.0f32, 2.0, 0.5, 0.0, 1e4, 0.0, 0.0];
+        let sigma_dy = [1.0f32, 60.0, 0.0, 5.0, 0.0, 2.0, 7.0];
+        let blend = [1.0f32, 0.25, 0.5, 0.9, 0.0, 1.0, 0.5];
+        let layout = nerf_core::composite::RayLayout {
+            offsets: std::sync::Arc::new(vec![0, 3, 7]),
+            deltas: std::sync::Arc::new(vec![0.1, 0.2, 0.3, 0.05, 0.05, 0.1, 0.1]),
+        };
+        let got = hidden_weights(&sigma_st, &sigma_dy, &blend, &layout);
+        for r in 0..2 {
+            let mut sum = 0.0f64;
+            for i in layout.offsets[r] as usize..layout.offsets[r + 1] as usize {
+                let (b, d) = (blend[i] as f64, layout.deltas[i] as f64);
+                let want = (1.0 - (-sum).exp() / HIDDEN_BELOW_T as f64).max(0.0) * d;
+                assert!(
+                    (got[i] as f64 - want).abs() < 1e-6,
+                    "sample {i}: {} vs {want}",
+                    got[i]
+                );
+                sum += ((1.0 - b) * sigma_st[i] as f64 + b * sigma_dy[i] as f64) * d;
+            }
+        }
+        // The first sample of a ray is never hidden; behind the wall everything is.
+        assert_eq!(got[0], 0.0);
+        assert_eq!(got[3], 0.0);
+        assert!(got[1] == 0.0 && got[2] > 0.0 && got[2] < 0.3, "{got:?}");
+        assert!((got[5] - 0.1).abs() < 1e-6 && (got[6] - 0.1).abs() < 1e-6);
     }
 }

@@ -6,11 +6,13 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use nerf::cli::CommonTrainArgs;
 use nerf::config::apply_overrides;
+use nerf::error::{ModelError, Result};
 use nerf::render::FrameWriter;
-use nerf_data::error::{DataError, Result};
-use nerf_data::{Camera, Image, LoadOptions};
+use nerf_data::error::DataError;
+use nerf_data::{Camera, Dataset, Image, LoadOptions};
 use nsff::config::{DynamicMode, NsffConfig, TimeInterp};
 use nsff::eval::{evaluate_with_depth, render_at};
+use nsff::model::NsffModel;
 use nsff::trainer::{CHECKPOINT, NsffTrainer, load_video};
 
 #[derive(Parser)]
@@ -104,11 +106,7 @@ fn run(cli: Cli) -> Result<()> {
             save_images,
             time_interp,
         } => {
-            let t = NsffTrainer::resume(
-                &run_dir,
-                |cfg| cfg.time_interp = time_interp.unwrap_or(cfg.time_interp),
-                false,
-            )?;
+            let t = open_run(&run_dir, time_interp)?;
             let r = write_eval(&t, save_images)?;
             println!("mean_psnr {:.4}", r.mean_psnr);
             Ok(())
@@ -122,7 +120,7 @@ fn train(args: TrainArgs) -> Result<()> {
     let run_dir = common.run_dir("nsff-");
     let mut t = if common.resume {
         if !run_dir.join(CHECKPOINT).exists() {
-            return Err(DataError::invalid(
+            return Err(ModelError::usage(
                 &run_dir,
                 "--resume: no checkpoint.bin in the run folder",
             ));
@@ -146,8 +144,7 @@ fn train(args: TrainArgs) -> Result<()> {
         cfg.time_interp = args.time_interp;
         let video = load_video(&cfg, &run_dir, false)?;
         cfg.adapt_to(&video.dataset, video.frames.len());
-        let cfg =
-            apply_overrides(&cfg, &common.overrides).map_err(|m| DataError::invalid(&common.data, m))?;
+        let cfg = apply_overrides(&cfg, &common.overrides).map_err(|m| ModelError::usage(&common.data, m))?;
         NsffTrainer::new(cfg, video, &run_dir)?
     };
     t.train(true)?;
@@ -158,6 +155,16 @@ fn train(args: TrainArgs) -> Result<()> {
         run_dir.join(CHECKPOINT).display()
     );
     if !common.no_render {
+        let t = Run {
+            cfg: t.cfg,
+            step: t.step,
+            elapsed: t.elapsed,
+            model: t.model,
+            dataset: t.video.dataset,
+            frames: t.video.frames,
+            run_dir: t.run_dir,
+            device: t.device,
+        };
         let r = write_eval(&t, false)?;
         println!("mean_psnr {:.4}", r.mean_psnr);
         render_path(&t, PathKind::Spacetime, 0, 48, &run_dir.join("render"))?;
@@ -170,10 +177,44 @@ fn train(args: TrainArgs) -> Result<()> {
     Ok(())
 }
 
-fn write_eval(t: &NsffTrainer, save_images: bool) -> Result<nerf::eval::EvalResult> {
-    let views = t.video.dataset.test.clone();
+/// A trained model with the dataset it is scored and rendered on (no flows, no optimiser).
+struct Run {
+    cfg: NsffConfig,
+    step: usize,
+    elapsed: f64,
+    model: NsffModel,
+    dataset: Dataset,
+    /// Training views in time order.
+    frames: Vec<usize>,
+    run_dir: PathBuf,
+    device: burn::tensor::Device,
+}
+
+/// Loads a run's model from its checkpoint, and its dataset for cameras and images.
+fn open_run(run_dir: &Path, time_interp: Option<TimeInterp>) -> Result<Run> {
+    let mut t = nsff::checkpoint::load_trained(run_dir)?;
+    if let Some(ti) = time_interp {
+        t.model.settings.time_interp = ti;
+    }
+    let cfg = t.state.config;
+    let dataset = nerf_data::load::load_video(&cfg.base.data, &cfg.base.load)?;
+    let (frames, _) = nsff::video::check_frames(&dataset)?;
+    Ok(Run {
+        cfg,
+        step: t.state.step,
+        elapsed: t.state.elapsed,
+        model: t.model,
+        dataset,
+        frames,
+        run_dir: run_dir.to_path_buf(),
+        device: t.device,
+    })
+}
+
+fn write_eval(t: &Run, save_images: bool) -> Result<nerf::eval::EvalResult> {
+    let views = t.dataset.test.clone();
     if views.is_empty() {
-        return Err(DataError::invalid(
+        return Err(ModelError::usage(
             &t.cfg.base.data,
             "the video has no held-out views",
         ));
@@ -182,12 +223,15 @@ fn write_eval(t: &NsffTrainer, save_images: bool) -> Result<nerf::eval::EvalResu
     if save_images {
         std::fs::create_dir_all(&dir).map_err(|e| DataError::io(&dir, e))?;
     }
-    let (result, depths) = evaluate_with_depth(t, &views, true, save_images.then_some(dir.as_path()))?;
+    let save = save_images.then_some(dir.as_path());
+    let (mut result, depths) = evaluate_with_depth(&t.model, &t.dataset, &views, true, save, &t.device)?;
+    result.step = t.step;
+    result.train_seconds = t.elapsed;
     let path = t.run_dir.join("eval.json");
     let json = serde_json::to_vec_pretty(&result).map_err(|e| DataError::invalid(&path, e.to_string()))?;
     nerf_data::image::write_atomic(&path, &json)?;
     for v in &result.views {
-        let time = t.video.dataset.views[v.view].time.unwrap_or(f32::NAN);
+        let time = t.dataset.views[v.view].time.unwrap_or(f32::NAN);
         println!(
             "{:>4} {:<20} t {:.3}  psnr {:7.3}  ssim {:.4}",
             v.view,
@@ -204,10 +248,11 @@ fn write_eval(t: &NsffTrainer, save_images: bool) -> Result<nerf::eval::EvalResu
         result.mean_ssim.unwrap_or(f64::NAN)
     );
     // Scenes from our generator carry their exact motion: score the scene flow too.
-    let scene_file = t.cfg.base.data.join(nerf_data::synth::SCENE_FILE);
+    let scene_file = t.cfg.base.data.join(nerf_synth::SCENE_FILE);
     if scene_file.exists() {
-        let scene = nerf_data::synth::Scene::load(&scene_file)?;
-        if let Some(e) = nsff::eval::scene_flow_error(t, &scene, 4) {
+        let scene = nerf_synth::Scene::load(&scene_file)?;
+        if let Some(e) = nsff::eval::scene_flow_error(&t.model, &t.dataset, &t.frames, &scene, 4, &t.device)?
+        {
             println!(
                 "scene flow on moving objects: EPE {:.4} (no-motion baseline {:.4}; predicted length {:.4}, cosine {:.2}) over {} surface points; in the next frame {:.2} px (no motion {:.2} px)",
                 e.epe,
@@ -224,7 +269,7 @@ fn write_eval(t: &NsffTrainer, save_images: bool) -> Result<nerf::eval::EvalResu
             nerf_data::image::write_atomic(&path, &json)?;
         }
     }
-    if let Some(e) = nsff::eval::depth_error(t, &views, &depths)? {
+    if let Some(e) = nsff::eval::depth_error(&t.cfg.base.data, &t.dataset, &views, &depths)? {
         println!(
             "depth on surfaces of the held-out views: mean abs error {:.4}, median relative error {:.4} over {} pixels",
             e.mean_abs, e.median_relative, e.pixels
@@ -234,14 +279,14 @@ fn write_eval(t: &NsffTrainer, save_images: bool) -> Result<nerf::eval::EvalResu
 }
 
 /// Renders (camera, time) pairs: colour, depth, opacity, dynamic share and scene-flow maps, GIF.
-fn render_pairs(t: &NsffTrainer, pairs: &[(Camera, f32)], out: &Path, gif: &str) -> Result<()> {
+fn render_pairs(t: &Run, pairs: &[(Camera, f32)], out: &Path, gif: &str) -> Result<()> {
     let mut writer = FrameWriter::new(out, None)?;
     for d in ["dynamic", "flow"] {
         std::fs::create_dir_all(out.join(d)).map_err(|e| DataError::io(out.join(d), e))?;
     }
     let bar = indicatif::ProgressBar::new(pairs.len() as u64);
     for (k, (cam, time)) in pairs.iter().enumerate() {
-        let r = render_at(t, cam, *time);
+        let r = render_at(&t.model, &t.dataset, cam, *time, &t.device)?;
         let (w, h) = (cam.intrinsics.width, cam.intrinsics.height);
         let name = format!("{k:04}.png");
         if r.dynamic_share.len() == (w * h) as usize {
@@ -254,20 +299,20 @@ fn render_pairs(t: &NsffTrainer, pairs: &[(Camera, f32)], out: &Path, gif: &str)
         bar.inc(1);
     }
     bar.finish_and_clear();
-    writer.finish_gif(gif)
+    Ok(writer.finish_gif(gif)?)
 }
 
-fn render_path(t: &NsffTrainer, kind: PathKind, frame: usize, n: usize, out: &Path) -> Result<()> {
-    let v = &t.video;
-    let frame = frame.min(v.frames.len() - 1);
-    let cam_of = |k: usize| v.dataset.views[v.frames[k]].camera;
-    let last = v.frames.len() - 1;
+fn render_path(t: &Run, kind: PathKind, frame: usize, n: usize, out: &Path) -> Result<()> {
+    let (ds, frames, times) = (&t.dataset, &t.frames, &t.model.times);
+    let frame = frame.min(frames.len() - 1);
+    let cam_of = |k: usize| ds.views[frames[k]].camera;
+    let last = frames.len() - 1;
     let pairs: Vec<(Camera, f32)> = match kind {
         PathKind::Bullet => {
-            let kind = nerf::render::default_path(&v.dataset);
-            nerf::render::path_cameras(&v.dataset, kind, n)
+            let kind = nerf::render::default_path(ds);
+            nerf::render::path_cameras(ds, kind, n)
                 .into_iter()
-                .map(|c| (Camera::new(cam_of(frame).intrinsics, c.pose), v.times[frame]))
+                .map(|c| (Camera::new(cam_of(frame).intrinsics, c.pose), times[frame]))
                 .collect()
         }
         PathKind::Timelapse => (0..n)
@@ -279,7 +324,7 @@ fn render_path(t: &NsffTrainer, kind: PathKind, frame: usize, n: usize, out: &Pa
                 let a = (tau.floor() as usize).min(last.saturating_sub(1));
                 let r = (tau - a as f32) as f64;
                 let pose = cam_of(a).pose.lerp(&cam_of((a + 1).min(last)).pose, r);
-                let time = v.times[a] + (v.times[(a + 1).min(last)] - v.times[a]) * r as f32;
+                let time = times[a] + (times[(a + 1).min(last)] - times[a]) * r as f32;
                 (Camera::new(cam_of(a).intrinsics, pose), time)
             })
             .collect(),
@@ -288,15 +333,11 @@ fn render_path(t: &NsffTrainer, kind: PathKind, frame: usize, n: usize, out: &Pa
 }
 
 fn render(args: RenderArgs) -> Result<()> {
-    let t = NsffTrainer::resume(
-        &args.run_dir,
-        |cfg| cfg.time_interp = args.time_interp.unwrap_or(cfg.time_interp),
-        false,
-    )?;
+    let t = open_run(&args.run_dir, args.time_interp)?;
     let out = args.out.unwrap_or_else(|| args.run_dir.join("render"));
     match args.cameras {
         Some(json) => {
-            let first = t.video.dataset.views[t.video.frames[0]].camera.intrinsics;
+            let first = t.dataset.views[t.frames[0]].camera.intrinsics;
             let cams = nerf_data::blender::read_cameras(&json, (first.width, first.height))?;
             let pairs: Vec<(Camera, f32)> = cams
                 .iter()
@@ -305,7 +346,7 @@ fn render(args: RenderArgs) -> Result<()> {
                         DataError::invalid(&json, format!("frame {} has no time", c.file_path))
                     })
                 })
-                .collect::<Result<_>>()?;
+                .collect::<Result<_, DataError>>()?;
             render_pairs(&t, &pairs, &out, "cameras.gif")?;
             let names: Vec<&str> = cams.iter().map(|c| c.file_path.as_str()).collect();
             let path = out.join("frames.json");

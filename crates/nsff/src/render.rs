@@ -1,19 +1,23 @@
-//! Space-time rendering: samples along rays, the combined static + dynamic composite, and
-//! NSFF's time interpolation by splatting scene-flow-displaced samples.
+//! Space-time rendering: samples along rays, the combined static + dynamic render (through the
+//! shared render function), and NSFF's time interpolation by splatting scene-flow-displaced
+//! samples layer by layer (a mixture of two times per layer, which the per-sample compositor
+//! cannot express; its background goes through the shared helper).
 
 use burn::module::Module;
 use burn::tensor::{Device, Tensor};
+use nerf::error::{ModelError, read_back};
 use nerf::renderer::{SceneBounds, tensor};
-use nerf_core::composite::{self, RayLayout};
+use nerf_core::field::{Field, FieldOutputs, FieldQuery};
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::rays::{Rays, intersect_aabb};
+use nerf_core::render::{Background, Component, RenderOptions, RenderOutput, add_background_host, render};
 use nerf_core::sampler::{self, MarchConfig, RaySamples, Spacing, stratified};
 use nerf_data::{Camera, Dataset};
 use rand::rngs::StdRng;
 
-use crate::config::NsffConfig;
+use crate::field::{BLEND, DynamicField, FLOW_NEXT, FLOW_PREV, GATE};
 use crate::geometry;
-use crate::model::{NsffFields, query_dynamic, query_static};
+use crate::model::{NsffModel, query_dynamic};
 
 /// Samples along rays. With an occupancy grid (object scenes, fast preset) the rays march through
 /// it and skip empty space; otherwise `n` stratified samples per ray in [near, far], clipped to
@@ -63,74 +67,121 @@ pub struct HostRender {
     pub samples_per_ray: f64,
 }
 
-fn host(t: Tensor<2>) -> Vec<f32> {
-    t.into_data().try_into_vec_as::<f32>().unwrap_or_default()
+/// Both fields queried at a batch's samples at one time (the training step's queries).
+pub struct SpaceTimeQuery {
+    /// `[S, 3]` sample positions and `S·3` unit view directions.
+    pub x: Tensor<2>,
+    pub dirs: Vec<f32>,
+    pub st: FieldOutputs,
+    pub dy: FieldOutputs,
+}
+
+/// Queries both fields at `samples` along `rays` at normalised time `time`.
+pub fn query_space_time(
+    model: &NsffModel,
+    dynamic: &DynamicField,
+    rays: &Rays,
+    samples: &RaySamples,
+    time: f32,
+    device: &Device,
+) -> SpaceTimeQuery {
+    let x = tensor(samples.positions(rays), 3, device);
+    let dirs = samples.per_sample3(&rays.viewdirs());
+    let st = model.fields.static_field.query(FieldQuery::new(x.clone(), &dirs));
+    let dy = query_dynamic(dynamic, x.clone(), time, &dirs);
+    SpaceTimeQuery { x, dirs, st, dy }
+}
+
+/// Compositing options of the model's samples: marched rays end wherever the grid does, so they
+/// must not absorb the remaining light.
+pub fn render_options(model: &NsffModel) -> RenderOptions {
+    RenderOptions {
+        open_far: model.bounds.open_far && model.occupancy.is_none(),
+        stop_eps: 0.0,
+    }
+}
+
+/// The combined render of training (differentiable on an autodiff device): the static and
+/// dynamic components blended per sample by b = b_s·g.
+pub fn render_combined(
+    model: &NsffModel,
+    rays: &Rays,
+    samples: &RaySamples,
+    q: &SpaceTimeQuery,
+    background: Option<[f32; 3]>,
+    device: &Device,
+) -> RenderOutput {
+    let blend = q.st.extras.expect(BLEND) * q.dy.extras.expect(GATE);
+    render(
+        rays,
+        samples,
+        &[
+            Component::new(q.st.sigma.clone(), q.st.rgb.clone()).blended(blend.clone().neg() + 1.0),
+            Component::new(q.dy.sigma.clone(), q.dy.rgb.clone()).blended(blend),
+        ],
+        &Background::from_option(background),
+        render_options(model),
+        device,
+    )
 }
 
 /// Renders rays at normalised time `time` with the combined model, no gradients. Samples whose
-/// static blend weight is below `cfg.blend_skip` skip the dynamic field. With an occupancy grid the
+/// static blend weight is below `blend_skip` skip the dynamic field. With an occupancy grid the
 /// rays march through it.
-#[allow(clippy::too_many_arguments)]
 pub fn render_direct(
-    fields: &NsffFields,
+    model: &NsffModel,
     rays: &Rays,
     time: f32,
-    cfg: &NsffConfig,
-    bounds: &SceneBounds,
-    occupancy: Option<&OccupancyGrid>,
     background: Option<[f32; 3]>,
     device: &Device,
-) -> HostRender {
+) -> Result<HostRender, ModelError> {
     let plain = device.clone().inner();
-    let fields = fields.valid();
-    let march = occupancy.map(|g| (g, &cfg.base.fast.march));
-    let samples = sample_rays(rays, bounds, cfg.samples, !bounds.open_far, march, None);
+    let fields = model.fields.valid();
+    let (bounds, settings) = (&model.bounds, &model.settings);
+    let march = model.occupancy.as_ref().map(|g| (g, &settings.march));
+    let samples = sample_rays(rays, bounds, settings.samples, !bounds.open_far, march, None);
     let s_n = samples.num_samples();
-    let mut out = HostRender::default();
     if s_n == 0 {
-        let bg = background.unwrap_or([0.0; 3]);
-        out.rgb = bg.repeat(rays.len()).to_vec();
-        out.depth = vec![0.0; rays.len()];
-        out.opacity = vec![0.0; rays.len()];
-        out.dynamic_share = vec![0.0; rays.len()];
-        out.flow_magnitude = vec![0.0; rays.len()];
-        return out;
+        let out = render(
+            rays,
+            &samples,
+            &[],
+            &Background::from_option(background),
+            RenderOptions::default(),
+            &plain,
+        );
+        let zeros = vec![0.0; rays.len()];
+        return Ok(HostRender {
+            rgb: read_back(out.rgb, "background")?,
+            depth: zeros.clone(),
+            opacity: zeros.clone(),
+            dynamic_share: zeros.clone(),
+            flow_magnitude: zeros,
+            ..HostRender::default()
+        });
     }
     let pos = samples.positions(rays);
     let dirs = samples.per_sample3(&rays.viewdirs());
-    let st = query_static(
-        &fields.static_field,
-        tensor(pos.clone(), 3, &plain),
-        &dirs,
-        bounds.aabb,
-    );
-    let (sigma_st, rgb_st, mut blend) = (host(st.sigma), host(st.rgb), host(st.blend));
+    let st = fields
+        .static_field
+        .query(FieldQuery::new(tensor(pos.clone(), 3, &plain), &dirs));
+    let mut blend = read_back(st.extras.expect(BLEND), "blend weight")?;
     let mut sigma_dy = vec![0.0f32; s_n];
     let mut rgb_dy = vec![0.0f32; 3 * s_n];
     let mut flow_mag = vec![0.0f32; s_n];
     let mut evaluated = 0usize;
     if let Some(dynamic) = &fields.dynamic {
         // b = b_s·g ≤ b_s: where b_s says static, the dynamic field cannot contribute.
-        let keep: Vec<usize> = (0..s_n).filter(|&i| blend[i] >= cfg.blend_skip).collect();
+        let keep: Vec<usize> = (0..s_n).filter(|&i| blend[i] >= settings.blend_skip).collect();
         evaluated = keep.len();
         if !keep.is_empty() {
-            let sub_pos: Vec<f32> = keep
-                .iter()
-                .flat_map(|&i| pos[3 * i..3 * i + 3].to_vec())
-                .collect();
-            let sub_dirs: Vec<f32> = keep
-                .iter()
-                .flat_map(|&i| dirs[3 * i..3 * i + 3].to_vec())
-                .collect();
-            let dy = query_dynamic(
-                dynamic,
-                tensor(sub_pos, 3, &plain),
-                time,
-                &sub_dirs,
-                bounds.aabb,
-                cfg.flow_scale,
-            );
-            let (s, c, f, g) = (host(dy.sigma), host(dy.rgb), host(dy.flow_next), host(dy.gate));
+            let pick =
+                |v: &[f32]| -> Vec<f32> { keep.iter().flat_map(|&i| v[3 * i..3 * i + 3].to_vec()).collect() };
+            let dy = query_dynamic(dynamic, tensor(pick(&pos), 3, &plain), time, &pick(&dirs));
+            let s = read_back(dy.sigma, "dynamic density")?;
+            let c = read_back(dy.rgb, "dynamic colour")?;
+            let f = read_back(dy.extras.expect(FLOW_NEXT), "scene flow")?;
+            let g = read_back(dy.extras.expect(GATE), "time gate")?;
             for (k, &i) in keep.iter().enumerate() {
                 blend[i] *= g[k];
                 sigma_dy[i] = s[k];
@@ -139,115 +190,81 @@ pub fn render_direct(
             }
         }
     }
-    // Marched rays end wherever the grid does: they must not absorb the remaining light.
-    let layout = samples.layout(rays, bounds.open_far && march.is_none());
-    let comp = composite_combined(
-        &sigma_st, &rgb_st, &blend, &sigma_dy, &rgb_dy, &flow_mag, &samples.t, &layout, &plain,
+    let b = tensor(blend, 1, &plain);
+    let components = [
+        Component::new(st.sigma, st.rgb).blended(b.clone().neg() + 1.0),
+        Component::new(tensor(sigma_dy, 1, &plain), tensor(rgb_dy, 3, &plain))
+            .blended(b)
+            .with(DYNAMIC_SHARE, Tensor::ones([s_n, 1], &plain))
+            .with(FLOW_MAGNITUDE, tensor(flow_mag, 1, &plain)),
+    ];
+    let out = render(
+        rays,
+        &samples,
+        &components,
+        &Background::from_option(background),
+        render_options(model),
+        &plain,
     );
-    let r = rays.len();
-    let bg = background.unwrap_or([0.0; 3]);
-    for i in 0..r {
-        let row = &comp[COMBINED * i..COMBINED * (i + 1)];
-        out.rgb.extend((0..3).map(|c| row[c] + (1.0 - row[6]) * bg[c]));
-        out.depth.push(row[3]);
-        out.dynamic_share.push(row[4]);
-        out.flow_magnitude.push(row[5]);
-        out.opacity.push(row[6]);
-    }
-    out.samples_per_ray = s_n as f64 / r as f64;
-    out.dynamic_per_ray = evaluated as f64 / r as f64;
-    out
+    let r = rays.len().max(1) as f64;
+    let (share, flow) = (out.expect(DYNAMIC_SHARE), out.expect(FLOW_MAGNITUDE));
+    Ok(HostRender {
+        rgb: read_back(out.rgb, "rendered colour")?,
+        depth: read_back(out.depth, "rendered depth")?,
+        opacity: read_back(out.opacity, "rendered opacity")?,
+        dynamic_share: read_back(share, "dynamic share")?,
+        flow_magnitude: read_back(flow, "flow magnitude")?,
+        samples_per_ray: s_n as f64 / r,
+        dynamic_per_ray: evaluated as f64 / r,
+    })
 }
 
-/// Channels of [`composite_combined`]'s output per ray.
-const COMBINED: usize = 7;
-
-/// The combined composite of host arrays: `[R, 7]` — rgb, depth, dynamic share, scene-flow
-/// magnitude, opacity. Per component the features are (rgb, t, is-dynamic, |flow|).
-#[allow(clippy::too_many_arguments)]
-fn composite_combined(
-    sigma_st: &[f32],
-    rgb_st: &[f32],
-    blend: &[f32],
-    sigma_dy: &[f32],
-    rgb_dy: &[f32],
-    flow_mag: &[f32],
-    t: &[f32],
-    layout: &RayLayout,
-    device: &Device,
-) -> Vec<f32> {
-    let s_n = sigma_st.len();
-    let mut sigma = Vec::with_capacity(2 * s_n);
-    let mut feats = Vec::with_capacity(12 * s_n);
-    let mut blend2 = Vec::with_capacity(2 * s_n);
-    for i in 0..s_n {
-        sigma.extend([sigma_st[i], sigma_dy[i]]);
-        feats.extend_from_slice(&rgb_st[3 * i..3 * i + 3]);
-        feats.extend([t[i], 0.0, 0.0]);
-        feats.extend_from_slice(&rgb_dy[3 * i..3 * i + 3]);
-        feats.extend([t[i], 1.0, flow_mag[i]]);
-        blend2.extend([1.0 - blend[i], blend[i]]);
-    }
-    let out = composite::composite(
-        tensor(sigma, 2, device),
-        tensor(feats, 12, device),
-        Some(tensor(blend2, 2, device)),
-        layout,
-        0.0,
-    );
-    host(out)
-}
+/// Render channels beside colour, depth and opacity: the share of each pixel rendered by the
+/// dynamic component, and its expected scene-flow magnitude.
+const DYNAMIC_SHARE: &str = "dynamic_share";
+const FLOW_MAGNITUDE: &str = "flow_magnitude";
 
 /// Renders a whole camera at a continuous frame position `tau` (frame index units). Between
 /// frames i and i+1 (r = tau − i), NSFF's splatting: the samples of both neighbouring times are
 /// moved along their scene flow by r and 1 − r, projected into the camera, and splatted layer by
 /// layer (samples share depths across rays, so layer k is a fronto-parallel slice), then
 /// composited front to back. `times[i]` is frame i's normalised time.
-#[allow(clippy::too_many_arguments)]
 pub fn render_splat(
-    fields: &NsffFields,
+    model: &NsffModel,
     dataset: &Dataset,
     camera: &Camera,
     tau: f32,
-    times: &[f32],
-    cfg: &NsffConfig,
-    bounds: &SceneBounds,
-    occupancy: Option<&OccupancyGrid>,
     device: &Device,
-) -> HostRender {
+) -> Result<HostRender, ModelError> {
     let plain = device.clone().inner();
+    let (times, bounds) = (&model.times, &model.bounds);
     let rays = dataset.rays_for(camera, 0..camera.intrinsics.num_pixels() as u32);
     let last = times.len() - 1;
     let i = (tau.floor().max(0.0) as usize).min(last.saturating_sub(1));
     let r = (tau - i as f32).clamp(0.0, 1.0);
-    let Some(dynamic) = fields.dynamic.as_ref().map(|d| d.valid()) else {
-        return render_direct(
-            fields,
-            &rays,
-            times[i],
-            cfg,
-            bounds,
-            occupancy,
-            dataset.background,
-            device,
-        );
+    let Some(dynamic) = model.fields.dynamic.as_ref().map(|d| d.valid()) else {
+        return render_direct(model, &rays, times[i], dataset.background, device);
     };
-    let st_field = fields.static_field.valid();
+    let st_field = model.fields.static_field.valid();
     let (w, h) = (
         camera.intrinsics.width as usize,
         camera.intrinsics.height as usize,
     );
     let n_rays = rays.len();
     // Same depths for every ray: layers are slices of constant camera depth (or NDC t).
-    let s = cfg.samples;
+    let s = model.settings.samples;
     // Not clipped to the box: every ray needs all `s` layers.
     let samples = sample_rays(&rays, bounds, s, false, None, None);
     let pos = samples.positions(&rays);
     let dirs = samples.per_sample3(&rays.viewdirs());
     let layout = samples.layout(&rays, bounds.open_far);
     let x = tensor(pos.clone(), 3, &plain);
-    let st = query_static(&st_field, x.clone(), &dirs, bounds.aabb);
-    let (mut sigma_st, rgb_st, blend) = (host(st.sigma), host(st.rgb), host(st.blend));
+    let st = st_field.query(FieldQuery::new(x.clone(), &dirs));
+    let blend = read_back(st.extras.expect(BLEND), "blend weight")?;
+    let (mut sigma_st, rgb_st) = (
+        read_back(st.sigma, "static density")?,
+        read_back(st.rgb, "static colour")?,
+    );
     // Layers span [near, far], which can leave the scene box; the fields are undefined there.
     let inside: Vec<bool> = pos
         .chunks_exact(3)
@@ -261,37 +278,30 @@ pub fn render_splat(
     // Per time: α^dy, colour, and splat target pixel of each sample.
     let mut per_time = Vec::new();
     for (m, frame) in [i, i + 1].into_iter().enumerate() {
-        let dy = query_dynamic(
-            &dynamic,
-            x.clone(),
-            times[frame],
-            &dirs,
-            bounds.aabb,
-            cfg.flow_scale,
-        );
+        let dy = query_dynamic(&dynamic, x.clone(), times[frame], &dirs);
         // Move towards the target time: from frame i forward by r, from i+1 backward by 1 − r.
         let (flow, amount) = if m == 0 {
-            (dy.flow_next.clone(), r)
+            (dy.extras.expect(FLOW_NEXT), r)
         } else {
-            (dy.flow_prev.clone(), 1.0 - r)
+            (dy.extras.expect(FLOW_PREV), 1.0 - r)
         };
         let moved = x.clone() + flow * amount;
         let world = match &dataset.ndc {
             Some(ndc) => geometry::ndc_to_world(moved, ndc),
             None => moved,
         };
-        let uv = host(geometry::project(world, camera, &plain));
-        let mut sigma_dy = host(dy.sigma);
+        let uv = read_back(geometry::project(world, camera, &plain), "projected samples")?;
+        let mut sigma_dy = read_back(dy.sigma, "dynamic density")?;
         for (sg, &ok) in sigma_dy.iter_mut().zip(&inside) {
             if !ok {
                 *sg = 0.0;
             }
         }
         // This time's blend, b_s·g.
-        let b: Vec<f32> = blend.iter().zip(host(dy.gate)).map(|(b, g)| b * g).collect();
-        per_time.push((sigma_dy, host(dy.rgb), uv, b));
+        let gate = read_back(dy.extras.expect(GATE), "time gate")?;
+        let b: Vec<f32> = blend.iter().zip(gate).map(|(b, g)| b * g).collect();
+        per_time.push((sigma_dy, read_back(dy.rgb, "dynamic colour")?, uv, b));
     }
-    let bg = dataset.background.unwrap_or([0.0; 3]);
     let mut rgb = vec![0.0f32; 3 * n_rays];
     let mut trans = vec![1.0f32; n_rays];
     let mut acc = vec![0.0f32; n_rays];
@@ -355,12 +365,8 @@ pub fn render_splat(
             trans[ray] = tr * pass.max(0.0);
         }
     }
-    for ray in 0..n_rays {
-        for c in 0..3 {
-            rgb[3 * ray + c] += (1.0 - acc[ray]) * bg[c];
-        }
-    }
-    HostRender {
+    add_background_host(&mut rgb, &acc, dataset.background);
+    Ok(HostRender {
         rgb,
         depth,
         opacity: acc,
@@ -368,14 +374,63 @@ pub fn render_splat(
         flow_magnitude: vec![0.0; n_rays],
         dynamic_per_ray: 2.0 * s as f64,
         samples_per_ray: s as f64,
-    }
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::NsffConfig;
     use nerf::config::Preset;
     use nerf_data::{Format, Intrinsics, Pose};
+
+    fn host(t: Tensor<2>) -> Vec<f32> {
+        t.into_data().try_into_vec_as::<f32>().unwrap()
+    }
+
+    /// The training step's combined render (autodiff device, both fields queried everywhere) and
+    /// the inference render (plain device, blend skip off) agree for the same parameters and
+    /// unjittered samples, at a frame time and between frames.
+    #[test]
+    fn training_and_inference_renders_agree_on_and_between_frames() {
+        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
+        cfg.samples = 24;
+        cfg.blend_skip = 0.0;
+        // A blend weight well inside (0, 1), so both components show.
+        cfg.blend_init_logit = 0.0;
+        let bounds = SceneBounds {
+            near: 2.0,
+            far: 6.0,
+            aabb: [[-1.5; 3], [1.5; 3]],
+            open_far: false,
+        };
+        let dev = Device::flex().autodiff();
+        let mut model = NsffModel::new(&cfg, bounds.clone(), vec![0.0, 0.5, 1.0], true, &dev);
+        model.occupancy = None;
+        let pose = Pose::look_at([0.3, 0.2, 3.5], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+        let camera = Camera::new(Intrinsics::centered(14.0, 12, 10), pose);
+        let rays = nerf_data::rays::camera_rays(&camera);
+        let bg = Some([0.9f32, 0.5, 0.1]);
+        let dynamic = model.fields.dynamic.as_ref().unwrap();
+        for time in [0.5f32, 0.3] {
+            let samples = sample_rays(&rays, &bounds, cfg.samples, true, None, None);
+            let q = query_space_time(&model, dynamic, &rays, &samples, time, &dev);
+            let train = render_combined(&model, &rays, &samples, &q, bg, &dev);
+            let infer = render_direct(&model, &rays, time, bg, &dev).unwrap();
+            let opacity = host(train.opacity.clone());
+            assert!(opacity.iter().sum::<f32>() / opacity.len() as f32 > 0.05);
+            for (name, a, b) in [
+                ("rgb", host(train.rgb), infer.rgb),
+                ("depth", host(train.depth), infer.depth),
+                ("opacity", opacity, infer.opacity),
+            ] {
+                assert_eq!(a.len(), b.len(), "{name}");
+                for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+                    assert!((x - y).abs() <= 1e-5, "t = {time}, {name}[{i}]: {x} vs {y}");
+                }
+            }
+        }
+    }
 
     /// At a frame time (r = 0) no sample moves and each lands on its own pixel centre, so NSFF's
     /// splatting must reproduce the direct render on the same depth layers (the box holds every
@@ -388,7 +443,6 @@ mod tests {
         let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
         cfg.samples = 32;
         cfg.blend_skip = 0.0;
-        let fields = NsffFields::new(&cfg, true, &device);
         let aabb = [[-4.0f32; 3], [4.0; 3]];
         let mut dataset =
             Dataset::blender_object("unused".into(), Format::DNerf, [0.2, 0.3, 0.4], Vec::new());
@@ -401,21 +455,12 @@ mod tests {
         };
         let pose = Pose::look_at([0.3, 0.2, 3.5], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
         let camera = Camera::new(Intrinsics::centered(20.0, 16, 12), pose);
-        let times = [0.0f32, 0.5, 1.0];
-        let splat = render_splat(
-            &fields, &dataset, &camera, 1.0, &times, &cfg, &bounds, None, &device,
-        );
+        let times = vec![0.0f32, 0.5, 1.0];
+        let mut model = NsffModel::new(&cfg, bounds, times.clone(), true, &device);
+        model.occupancy = None;
+        let splat = render_splat(&model, &dataset, &camera, 1.0, &device).unwrap();
         let rays = dataset.rays_for(&camera, 0..16 * 12);
-        let direct = render_direct(
-            &fields,
-            &rays,
-            times[1],
-            &cfg,
-            &bounds,
-            None,
-            dataset.background,
-            &device,
-        );
+        let direct = render_direct(&model, &rays, times[1], dataset.background, &device).unwrap();
         let mean_opacity = direct.opacity.iter().sum::<f32>() / direct.opacity.len() as f32;
         assert!(
             mean_opacity > 0.05,

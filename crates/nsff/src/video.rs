@@ -124,7 +124,7 @@ pub fn prepare(dataset: Dataset, cache_dir: &Path, thresholds_px: (f32, f32), qu
     if !complete {
         let first = &dataset.views[frames[0]].image;
         let (w, h) = (first.width, first.height);
-        match nerf_data::flow::read_flow_cache(cache_dir, n, w, h)? {
+        match nerf_flow::read_flow_cache(cache_dir, n, w, h)? {
             Some((f, b)) => {
                 (flow_fwd, flow_bwd) = (f, b);
             }
@@ -137,16 +137,16 @@ pub fn prepare(dataset: Dataset, cache_dir: &Path, thresholds_px: (f32, f32), qu
                 }
                 let images: Vec<&nerf_data::Image> =
                     frames.iter().map(|&f| &dataset.views[f].image).collect();
-                let (f, b) = nerf_data::flow::video_flows(&images, &nerf_data::flow::FlowParams::default());
-                nerf_data::flow::write_flow_cache(cache_dir, &f, &b)?;
+                let (f, b) = nerf_flow::video_flows(&images, &nerf_flow::FlowParams::default());
+                nerf_flow::write_flow_cache(cache_dir, &f, &b)?;
                 (flow_fwd, flow_bwd) = (f, b);
             }
         }
     }
     let cameras: Vec<nerf_data::Camera> = frames.iter().map(|&f| dataset.views[f].camera).collect();
-    let report = nerf_data::flow::independent_motion(&cameras, &flow_fwd, motion_threshold_px);
+    let report = nerf_flow::independent_motion(&cameras, &flow_fwd, motion_threshold_px);
     let motion_masks: Vec<Vec<bool>> =
-        nerf_data::flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, mask_threshold_px)
+        nerf_flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, mask_threshold_px)
             .into_iter()
             .map(|m| m.into_iter().map(|v| v > 0.5).collect())
             .collect();

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use nerf_data::synth::{Preset, SynthConfig};
+use nerf_synth::{Preset, SynthConfig};
 
 #[path = "../../../tests/support/cli.rs"]
 mod support;
@@ -25,7 +25,7 @@ fn video(dir: &Path, preset: Preset, (w, h): (u32, u32), frames: usize) -> PathB
     let data = dir.join(preset.as_str());
     let mut cfg = SynthConfig::new(preset).with_size(w, h).with_views(frames, 4);
     cfg.mono_disparity = true;
-    nerf_data::synth::generate(&cfg, &data).unwrap();
+    nerf_synth::generate(&cfg, &data).unwrap();
     data
 }
 

@@ -324,6 +324,15 @@ impl HashGrid {
         self.num_entries() * self.config.features
     }
 
+    /// Replaces the table (checkpoint loading); `Err` with the expected size when it does not fit.
+    pub fn set_table(&self, table: Vec<f32>) -> Result<(), usize> {
+        if table.len() != self.num_params() {
+            return Err(self.num_params());
+        }
+        *self.table.write().unwrap_or_else(|e| e.into_inner()) = table;
+        Ok(())
+    }
+
     /// A copy of the table.
     pub fn table(&self) -> Vec<f32> {
         self.table.read().unwrap_or_else(|e| e.into_inner()).clone()

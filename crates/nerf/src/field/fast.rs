@@ -2,7 +2,8 @@
 //! density and geometry features; spherical-harmonics view encoding + features → colour MLP.
 //!
 //! The hash table lives on the host (see `nerf_core::encoding::hash_grid`) and is shared by
-//! clones of the module (`valid()` copies for inference see the same table).
+//! clones of the module (`valid()` copies for inference see the same table). Positions are
+//! normalised to [0, 1]^3 over the field's box; a time input becomes the grid's fourth axis.
 
 use std::sync::Arc;
 
@@ -13,13 +14,16 @@ use burn::tensor::activation::sigmoid;
 use burn::tensor::{Device, Tensor};
 use nerf_core::encoding::spherical_harmonics;
 use nerf_core::encoding::{HashGrid, HashGridConfig};
+use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery};
 use nerf_core::mlp::{Mlp, MlpConfig};
 
-use super::FieldOutput;
+use super::{RAW_EXTRA, normalize};
 
 #[derive(Config, Debug)]
 pub struct FastFieldConfig {
     pub grid: HashGridConfig,
+    /// The box the grid covers, `[min, max]` corners in scene coordinates.
+    pub aabb: [[f32; 3]; 2],
     /// Width of the density MLP's hidden layer.
     #[config(default = 64)]
     pub hidden: usize,
@@ -56,6 +60,7 @@ impl FastFieldConfig {
             extra: (self.extra_outputs > 0)
                 .then(|| LinearConfig::new(self.geo_features, self.extra_outputs).init(device)),
             grid,
+            aabb: self.aabb,
             sh_degree: self.sh_degree,
             max_log_density: self.max_log_density,
         }
@@ -69,12 +74,23 @@ pub struct FastField {
     pub extra: Option<Linear>,
     #[module(skip)]
     pub grid: Arc<HashGrid>,
+    #[module(skip)]
+    pub aabb: [[f32; 3]; 2],
     pub sh_degree: usize,
     pub max_log_density: f32,
 }
 
 impl FastField {
-    /// Geometry features `[S, G]` for positions normalised to [0, 1]^D.
+    /// Grid coordinates `[S, D]`: positions normalised over the box, then the time, if any.
+    fn grid_input(&self, positions: Tensor<2>, time: Option<Tensor<2>>) -> Tensor<2> {
+        let x = normalize(positions, self.aabb);
+        match time {
+            Some(t) => Tensor::cat(vec![x, t], 1),
+            None => x,
+        }
+    }
+
+    /// Geometry features `[S, G]` for grid coordinates in [0, 1]^D.
     fn geometry(&self, normalized: Tensor<2>) -> Tensor<2> {
         let enc = nerf_core::profile::span("fwd.hash_encode", || self.grid.encode(normalized));
         nerf_core::profile::span("fwd.density_mlp", || self.density.forward(enc))
@@ -88,28 +104,32 @@ impl FastField {
             .exp()
     }
 
-    /// Density `[S, 1]` and the extra head's raw outputs `[S, E]` (no colour).
-    pub fn density_extra(&self, normalized: Tensor<2>) -> (Tensor<2>, Option<Tensor<2>>) {
-        let geo = self.geometry(normalized);
-        let extra = self.extra.as_ref().map(|head| head.forward(geo.clone()));
-        (self.sigma(&geo), extra)
+    fn extras(&self, geo: Tensor<2>) -> Extras {
+        let mut extras = Extras::default();
+        if let Some(head) = &self.extra {
+            extras.push(RAW_EXTRA, head.forward(geo));
+        }
+        extras
+    }
+}
+
+impl Field for FastField {
+    fn density(&self, positions: Tensor<2>, time: Option<Tensor<2>>) -> Density {
+        let geo = self.geometry(self.grid_input(positions, time));
+        Density {
+            sigma: self.sigma(&geo),
+            extras: self.extras(geo),
+        }
     }
 
-    /// Density only, `[S, 1]` (occupancy updates, early termination).
-    pub fn density(&self, normalized: Tensor<2>) -> Tensor<2> {
-        self.sigma(&self.geometry(normalized))
-    }
-
-    /// Full query. `normalized`: `[S, D]` positions in [0, 1]^D; `dirs`: `[S, 3]` unit view
-    /// directions on the host (they never need gradients).
-    pub fn forward(&self, normalized: Tensor<2>, dirs: &[f32]) -> FieldOutput {
-        let device = normalized.device();
-        let geo = self.geometry(normalized);
+    fn query(&self, query: FieldQuery<'_>) -> FieldOutputs {
+        let device = query.positions.device();
+        let geo = self.geometry(self.grid_input(query.positions, query.time));
         let sigma = self.sigma(&geo);
         let n = geo.dims()[0];
         let sh = Tensor::<2>::from_data(
             burn::tensor::TensorData::new(
-                spherical_harmonics::encode(dirs, self.sh_degree),
+                spherical_harmonics::encode(query.dirs, self.sh_degree),
                 [n, self.sh_degree * self.sh_degree],
             ),
             &device,
@@ -117,7 +137,14 @@ impl FastField {
         let rgb = nerf_core::profile::span("fwd.color_mlp", || {
             sigmoid(self.color.forward(Tensor::cat(vec![geo.clone(), sh], 1)))
         });
-        let extra = self.extra.as_ref().map(|head| head.forward(geo));
-        FieldOutput { sigma, rgb, extra }
+        FieldOutputs {
+            sigma,
+            rgb,
+            extras: self.extras(geo),
+        }
+    }
+
+    fn host_params(&self) -> Vec<Arc<HashGrid>> {
+        vec![self.grid.clone()]
     }
 }

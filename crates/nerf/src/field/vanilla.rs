@@ -8,8 +8,9 @@ use burn::nn::{Linear, LinearConfig};
 use burn::tensor::activation::{relu, sigmoid};
 use burn::tensor::{Device, Tensor, TensorData};
 use nerf_core::encoding::{PositionalEncoding, PositionalEncodingConfig};
+use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery};
 
-use super::FieldOutput;
+use super::RAW_EXTRA;
 
 #[derive(Config, Debug)]
 pub struct VanillaFieldConfig {
@@ -79,8 +80,14 @@ pub struct VanillaField {
 }
 
 impl VanillaField {
-    fn trunk(&self, positions: Tensor<2>) -> Tensor<2> {
-        let x = self.pe_x.forward(positions);
+    /// The trunk's features `[S, W]`. A time input (NSFF's dynamic field) is encoded jointly with
+    /// the position, mapped from [0, 1] to [−1, 1] as NSFF does.
+    fn trunk(&self, positions: Tensor<2>, time: Option<Tensor<2>>) -> Tensor<2> {
+        let input = match time {
+            Some(t) => Tensor::cat(vec![positions, t * 2.0 - 1.0], 1),
+            None => positions,
+        };
+        let x = self.pe_x.forward(input);
         let mut h = x.clone();
         for (i, layer) in self.trunk.iter().enumerate() {
             if i == self.skip + 1 {
@@ -91,26 +98,45 @@ impl VanillaField {
         h
     }
 
-    /// Raw density (before noise and ReLU), `[S, 1]`; the renderer applies ReLU(raw + noise).
-    pub fn raw_density(&self, positions: Tensor<2>) -> Tensor<2> {
-        self.sigma.forward(self.trunk(positions))
+    fn extras(&self, h: Tensor<2>) -> Extras {
+        let mut extras = Extras::default();
+        if let Some(head) = &self.extra {
+            extras.push(RAW_EXTRA, head.forward(h));
+        }
+        extras
+    }
+}
+
+impl Field for VanillaField {
+    /// σ = ReLU(raw).
+    fn density(&self, positions: Tensor<2>, time: Option<Tensor<2>>) -> Density {
+        let h = self.trunk(positions, time);
+        Density {
+            sigma: relu(self.sigma.forward(h.clone())),
+            extras: self.extras(h),
+        }
     }
 
-    /// Full query: `positions` `[S, D]` (world or NDC coordinates), `dirs` `[S, 3]` unit view
-    /// directions on the host. `sigma` here is the raw density; see [`Self::raw_density`].
-    pub fn forward(&self, positions: Tensor<2>, dirs: &[f32]) -> FieldOutput {
-        let device = positions.device();
-        let n = positions.dims()[0];
-        let h = self.trunk(positions);
-        let sigma = self.sigma.forward(h.clone());
-        let d = Tensor::<2>::from_data(TensorData::new(dirs.to_vec(), [n, 3]), &device);
+    /// σ = ReLU(raw + noise), nerf-pytorch's activation (noise only while training).
+    fn query(&self, query: FieldQuery<'_>) -> FieldOutputs {
+        let device = query.positions.device();
+        let n = query.positions.dims()[0];
+        let h = self.trunk(query.positions, query.time);
+        let raw = self.sigma.forward(h.clone());
+        let raw = match query.density_noise {
+            Some(noise) => raw + noise,
+            None => raw,
+        };
+        let d = Tensor::<2>::from_data(TensorData::new(query.dirs.to_vec(), [n, 3]), &device);
         let feat = self.feature.forward(h.clone());
         let v = relu(
             self.view
                 .forward(Tensor::cat(vec![feat, self.pe_d.forward(d)], 1)),
         );
-        let rgb = sigmoid(self.rgb.forward(v));
-        let extra = self.extra.as_ref().map(|head| head.forward(h));
-        FieldOutput { sigma, rgb, extra }
+        FieldOutputs {
+            sigma: relu(raw),
+            rgb: sigmoid(self.rgb.forward(v)),
+            extras: self.extras(h),
+        }
     }
 }

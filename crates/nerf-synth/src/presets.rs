@@ -5,7 +5,7 @@
 use super::scene::{Motion, Object, Scene, Shape, Split, SynthView, ViewKind};
 use super::texture::{Pattern, Texture, mix64};
 use super::{Preset, SynthConfig};
-use crate::math::{self, Vec3};
+use nerf_data::math::{self, Vec3};
 
 /// Height of the ground square and its half side; everything fits in [-1.5, 1.5]³.
 const GROUND_Z: f64 = -0.5;

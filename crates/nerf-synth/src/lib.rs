@@ -1,11 +1,11 @@
 //! Deterministic synthetic scenes with exact ground truth, written in Blender / D-NeRF format.
 //!
 //! Captured datasets give images but no true depth, optical flow or 3-D scene flow, so neither
-//! the geometry code nor NSFF's motion estimates can be scored exactly on them. This module
+//! the geometry code nor NSFF's motion estimates can be scored exactly on them. This crate
 //! ray-traces small analytic scenes (spheres, boxes, flat squares and discs with procedural
 //! textures, Lambertian shading) and writes them together with that ground truth.
 //!
-//! Conventions are those of [`crate::camera`]: OpenGL camera axes, pixel centres at (i + 0.5,
+//! Conventions are those of [`nerf_data::camera`]: OpenGL camera axes, pixel centres at (i + 0.5,
 //! j + 0.5), ray parameter = camera depth. The world is z-up like Blender's, the content fits in
 //! the box [-1.5, 1.5]³ and cameras sit at radius 4 looking at the origin (near 2, far 6).
 //!

@@ -1,13 +1,13 @@
 //! Flow cache in NSFF's `flow_i1/` layout (method.md §4.1): `{i:05}_fwd.npz` for frames
 //! 0..N−2 and `{i:05}_bwd.npz` for frames 1..N−1, each with `flow` (H×W×2 float32, pixels) and
-//! `mask` (H×W float32, 0/1). NSFF's own loader and [`crate::video::load`] read these files.
+//! `mask` (H×W float32, 0/1). NSFF's own loader and [`nerf_data::video::load`] read these files.
 
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use crate::dataset::FlowField;
-use crate::error::{DataError, Result};
+use nerf_data::dataset::FlowField;
+use nerf_data::error::{DataError, Result};
 
 type Flows = (Vec<Option<FlowField>>, Vec<Option<FlowField>>);
 
@@ -45,11 +45,11 @@ fn write_field(path: &Path, field: &FlowField) -> Result<()> {
         ));
     }
     let wide = |v: &[f32]| v.iter().map(|&x| x as f64).collect::<Vec<f64>>();
-    let flow = crate::npy::encode_npy(&[h, w, 2], &wide(&field.flow), true);
-    let mask = crate::npy::encode_npy(&[h, w], &wide(&field.mask), true);
+    let flow = nerf_data::npy::encode_npy(&[h, w, 2], &wide(&field.flow), true);
+    let mask = nerf_data::npy::encode_npy(&[h, w], &wide(&field.mask), true);
     // Deflated like numpy.savez_compressed: the masks shrink to almost nothing.
-    let zip = crate::npz::write_zip(&[("flow.npy", &flow), ("mask.npy", &mask)], true);
-    crate::image::write_atomic(path, &zip)
+    let zip = nerf_data::npz::write_zip(&[("flow.npy", &flow), ("mask.npy", &mask)], true);
+    nerf_data::image::write_atomic(path, &zip)
 }
 
 /// Reads the cache for `n_frames` frames of `width` x `height`. `Ok(None)` when `dir` or any of
@@ -77,7 +77,7 @@ pub fn read_flow_cache(dir: &Path, n_frames: usize, width: u32, height: u32) -> 
                 let present = if fwd { i + 1 < n_frames } else { i > 0 };
                 present
                     .then(|| {
-                        crate::video::read_flow(&flow_path(dir, i, if fwd { "fwd" } else { "bwd" }), w, h)
+                        nerf_data::video::read_flow(&flow_path(dir, i, if fwd { "fwd" } else { "bwd" }), w, h)
                     })
                     .transpose()
             })

@@ -1,17 +1,17 @@
-//! End-point error of `nerf_data::flow::estimate_flow` against the synthetic generator's exact
+//! End-point error of `nerf_flow::estimate_flow` against the synthetic generator's exact
 //! optical flow, over every forward pair of a video preset, with the time per pair.
 //!
 //! ```text
-//! cargo run -p nerf-data --release --example flow_epe -- [--preset dynamic] [--seed 0]
+//! cargo run -p nerf-flow --release --example flow_epe -- [--preset dynamic] [--seed 0]
 //!     [--method tvl1|hs|lk|all] [--size 128x96] [--frames 24]
 //! ```
-//! The module docs of `nerf_data::flow` quote its output (`--method all`).
+//! The crate docs of `nerf_flow` quote its output (`--method all`).
 
 use std::time::Instant;
 
 use nerf_data::Image;
-use nerf_data::flow::{FlowMethod, FlowParams, TvL1Params, estimate_flow};
-use nerf_data::synth::{Preset, Scene, Split, SynthConfig};
+use nerf_flow::{FlowMethod, FlowParams, TvL1Params, estimate_flow};
+use nerf_synth::{Preset, Scene, Split, SynthConfig};
 
 fn arg<'a>(args: &'a [String], name: &str) -> Option<&'a str> {
     args.iter()

@@ -20,7 +20,7 @@
 //!
 //! ## Why TV-L1: measured end-point error
 //! Mean EPE against the generator's exact flow over every GT-visible pixel of all 23 forward
-//! pairs (`cargo run -p nerf-data --release --example flow_epe -- --seed S [--size 512x288]`);
+//! pairs (`cargo run -p nerf-flow --release --example flow_epe -- --seed S [--size 512x288]`);
 //! the three solvers share the pyramid, bicubic warping, median filter and pre-smoothing, each
 //! with its best weight from a small sweep (HS α = 5, LK window σ = 2 px):
 //!
@@ -65,7 +65,7 @@
 //! # Cache
 //! [`write_flow_cache`] / [`read_flow_cache`] store the flows as NSFF does (`{i:05}_fwd.npz`,
 //! `{i:05}_bwd.npz` with `flow` and `mask`), read back by the same code as
-//! [`crate::video::load`]'s `flow_i1/` priors.
+//! [`nerf_data::video::load`]'s `flow_i1/` priors.
 
 mod baselines;
 mod cache;
@@ -82,14 +82,14 @@ pub use motion::{
 };
 pub use tvl1::TvL1Params;
 
-use crate::dataset::FlowField;
-use crate::image::Image;
+use nerf_data::dataset::FlowField;
+use nerf_data::image::Image;
 use plane::{Flow, Plane};
 
 /// The per-level solver run inside the coarse-to-fine pyramid.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum FlowMethod {
-    /// TV-L1 (the default; see the module docs for why).
+    /// TV-L1 (the default; see the crate docs for why).
     TvL1(TvL1Params),
     /// Horn–Schunck with warping and median filtering; `alpha` is the smoothness weight for
     /// intensities in [0, 255].
@@ -104,7 +104,7 @@ impl Default for FlowMethod {
     }
 }
 
-/// Settings of [`estimate_flow`]. The defaults are what the measurements in the module docs used.
+/// Settings of [`estimate_flow`]. The defaults are what the measurements in the crate docs used.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FlowParams {
     pub method: FlowMethod,
@@ -280,9 +280,9 @@ pub fn consistency_mask(fwd: &[f32], bwd: &[f32], width: u32, height: u32) -> Ve
 }
 
 /// Forward (i → i+1; `None` for the last frame) and backward (i → i−1; `None` for the first)
-/// flows of a video with their masks, the layout of [`crate::VideoPriors::flow_fwd`] /
+/// flows of a video with their masks, the layout of [`nerf_data::VideoPriors::flow_fwd`] /
 /// `flow_bwd`. Each mask is [`consistency_mask`] times [`texture_mask`] of the source frame
-/// (see the module docs for why). Frame pairs and both directions run in parallel.
+/// (see the crate docs for why). Frame pairs and both directions run in parallel.
 ///
 /// # Panics
 /// When the frames differ in size.

@@ -3,9 +3,9 @@
 use rayon::prelude::*;
 
 use super::scene::{Object, Scene};
-use crate::camera::Camera;
-use crate::image::Image;
-use crate::math::{self, Mat3, Vec3};
+use nerf_data::camera::Camera;
+use nerf_data::image::Image;
+use nerf_data::math::{self, Mat3, Vec3};
 
 /// Rays start this far along their parameter, so a camera never hits itself.
 const T_MIN: f64 = 1e-9;

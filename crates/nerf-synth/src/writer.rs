@@ -1,4 +1,4 @@
-//! Writes a scene as a Blender / D-NeRF folder with ground truth (layout in the module docs).
+//! Writes a scene as a Blender / D-NeRF folder with ground truth (layout in the crate docs).
 
 use std::path::{Path, PathBuf};
 
@@ -7,9 +7,9 @@ use serde::Serialize;
 
 use super::scene::{SCENE_FILE, Scene, Split, SynthView};
 use super::{Preset, SynthConfig};
-use crate::camera::AxisConvention;
-use crate::error::{DataError, Result};
-use crate::image::write_atomic;
+use nerf_data::camera::AxisConvention;
+use nerf_data::error::{DataError, Result};
+use nerf_data::image::write_atomic;
 
 /// What [`generate`] wrote.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -66,7 +66,7 @@ struct FrameJson {
 
 fn write_f32_npy(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
     let wide: Vec<f64> = data.iter().map(|&v| v as f64).collect();
-    write_atomic(path, &crate::npy::encode_npy(shape, &wide, true))
+    write_atomic(path, &nerf_data::npy::encode_npy(shape, &wide, true))
 }
 
 fn gt_path(out_dir: &Path, view: &SynthView, suffix: &str) -> PathBuf {
@@ -77,7 +77,7 @@ fn gt_path(out_dir: &Path, view: &SynthView, suffix: &str) -> PathBuf {
 }
 
 impl Scene {
-    /// Renders every view and writes the whole folder; see the module docs for the layout.
+    /// Renders every view and writes the whole folder; see the crate docs for the layout.
     pub fn write(&self, out_dir: &Path) -> Result<GenerateSummary> {
         self.validate()
             .map_err(|m| DataError::invalid(out_dir, format!("invalid synthetic scene: {m}")))?;
@@ -171,7 +171,7 @@ impl Scene {
             .enumerate()
             .map(|(k, view)| {
                 let depth_path = gt_path(out_dir, view, "depth");
-                let depth = crate::npy::read_npy(&depth_path)?.to_f32();
+                let depth = nerf_data::npy::read_npy(&depth_path)?.to_f32();
                 if depth.len() != w * h {
                     return Err(DataError::invalid(
                         &depth_path,

@@ -20,9 +20,9 @@
 //! smaller than the epipolar distance (H·p̃ lies on the epipolar line), so the test only gets
 //! stricter where it can afford to.
 
-use crate::camera::Camera;
-use crate::dataset::FlowField;
-use crate::math::{self, Mat3, Vec3};
+use nerf_data::camera::Camera;
+use nerf_data::dataset::FlowField;
+use nerf_data::math::{self, Mat3, Vec3};
 
 /// Below this median rotation-transfer error (pixels) a pair is scored with the transfer error
 /// rather than the epipolar distance (see the module docs).

@@ -10,7 +10,7 @@ use nerf_data::image::Image;
 use nerf_data::math::{self, Mat3, Vec3};
 use nerf_data::npy::read_npy;
 use nerf_data::rays::pixel_rays;
-use nerf_data::synth::{Object, Preset, Scene, Shape, Split, SynthConfig, ViewKind, generate};
+use nerf_synth::{Object, Preset, Scene, Shape, Split, SynthConfig, ViewKind, generate};
 use serde_json::Value;
 
 /// A folder under the system temp dir, removed when dropped.
@@ -587,7 +587,7 @@ fn presets_and_configs() {
 }
 
 /// Generation time of the default presets (release build):
-/// `cargo test -p nerf-data --release --test synth -- --ignored --nocapture`.
+/// `cargo test -p nerf-synth --release --test synth -- --ignored --nocapture`.
 #[test]
 #[ignore]
 fn generation_time_of_default_presets() {

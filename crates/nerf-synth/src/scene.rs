@@ -7,9 +7,9 @@ use serde::{Deserialize, Serialize};
 
 use super::texture::Texture;
 use super::{Preset, SynthConfig};
-use crate::camera::{Camera, Intrinsics, Pose};
-use crate::error::{DataError, Result};
-use crate::math::{self, Mat3, Vec3};
+use nerf_data::camera::{Camera, Intrinsics, Pose};
+use nerf_data::error::{DataError, Result};
+use nerf_data::math::{self, Mat3, Vec3};
 
 /// Name of the scene description inside a generated folder.
 pub const SCENE_FILE: &str = "scene.json";
@@ -387,7 +387,7 @@ impl Scene {
         } else {
             path.join(SCENE_FILE)
         };
-        let bytes = crate::error::read_file(&file)?;
+        let bytes = nerf_data::error::read_file(&file)?;
         let scene: Scene = serde_json::from_slice(&bytes)
             .map_err(|e| DataError::invalid(&file, format!("not a synthetic scene description: {e}")))?;
         if scene.format != FORMAT || scene.version != VERSION {

@@ -6,7 +6,7 @@
 
 use rayon::prelude::*;
 
-use crate::image::Image;
+use nerf_data::image::Image;
 
 /// Rasters with at least this many pixels split row loops across rayon threads; smaller ones
 /// (coarse pyramid levels, small videos) run serially because the per-pass scheduling overhead
@@ -306,7 +306,7 @@ impl Flow {
         }
     }
 
-    /// Interleaved `[H*W*2]` (dx, dy), the layout of [`crate::FlowField`].
+    /// Interleaved `[H*W*2]` (dx, dy), the layout of [`nerf_data::FlowField`].
     pub fn interleaved(&self) -> Vec<f32> {
         self.u
             .data

@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::math::{self, Vec3};
+use nerf_data::math::{self, Vec3};
 
 /// The large-scale pattern of a [`Texture`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

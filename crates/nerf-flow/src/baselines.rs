@@ -1,5 +1,5 @@
-//! The two classical alternatives we measured TV-L1 against (see the module docs of
-//! [`crate::flow`] for the numbers): Horn–Schunck with warping and median filtering, and dense
+//! The two classical alternatives we measured TV-L1 against (see the crate docs for
+//! the numbers): Horn–Schunck with warping and median filtering, and dense
 //! Lucas–Kanade with a Gaussian window. Both run inside the same pyramid as TV-L1.
 
 use super::plane::{Flow, Linearised, Plane, for_rows};

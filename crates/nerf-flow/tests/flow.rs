@@ -6,12 +6,12 @@
 
 use std::time::Instant;
 
-use nerf_data::flow::{
+use nerf_data::{Camera, FlowField, Image, Pose};
+use nerf_flow::{
     FlowParams, consistency_mask, epipolar_errors, estimate_flow, fundamental_matrix, independent_motion,
     motion_masks, read_flow_cache, video_flows, write_flow_cache,
 };
-use nerf_data::synth::{Preset, Scene, Split, SynthConfig, SynthView};
-use nerf_data::{Camera, FlowField, Image, Pose};
+use nerf_synth::{Preset, Scene, Split, SynthConfig, SynthView};
 
 mod common;
 use common::TempDir;
@@ -578,7 +578,7 @@ fn flow_of_a_training_size_pair_is_fast_enough() {
     assert!(secs < bound, "{secs} s");
 }
 
-/// Full-sequence report: `cargo test -p nerf-data --release --test flow -- --ignored --nocapture`.
+/// Full-sequence report: `cargo test -p nerf-flow --release --test flow -- --ignored --nocapture`.
 #[test]
 #[ignore = "report: mean EPE over every forward pair of the dynamic preset, and a 512x288 timing"]
 fn report_full_dynamic_sequence() {

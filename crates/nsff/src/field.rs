@@ -1,0 +1,205 @@
+//! NSFF's two fields, both the static pipeline's [`BaseField`] with extra outputs.
+//!
+//! The static field adds one output, the blend weight b_s ∈ (0, 1) (NSFF predicts it from the
+//! static network). The dynamic field takes (x, y, z, t) and adds nine: scene flow to the previous
+//! and next frame, the two disocclusion probabilities, and a time gate g. The blend is
+//! b = b_s(x)·g(x, t): NSFF's b is a function of position only, so along a moving object's path it
+//! must be high at every time, and nothing could hide the dynamic field's guesses in space a
+//! frame's camera cannot see without also hiding the object at the times it is there. The gate
+//! lets b fall at one time and stay at another; b_s alone still decides which samples can skip
+//! the dynamic field at render time (b ≤ b_s).
+
+use std::sync::Arc;
+
+use burn::module::Module;
+use burn::tensor::activation::sigmoid;
+use burn::tensor::{Device, Tensor};
+use nerf::config::Preset;
+use nerf::field::{BaseField, FastFieldConfig, RAW_EXTRA, VanillaFieldConfig};
+use nerf::model::base_field;
+use nerf_core::encoding::HashGrid;
+use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery};
+
+use crate::config::NsffConfig;
+
+/// Static field extra: `[S, 1]` blend weight b_s ∈ (0, 1), the dynamic share's upper bound.
+pub const BLEND: &str = "blend";
+/// Dynamic field extras: `[S, 3]` scene flow to the previous / next frame (scene units).
+pub const FLOW_PREV: &str = "flow_prev";
+pub const FLOW_NEXT: &str = "flow_next";
+/// `[S, 1]` disocclusion probabilities towards the previous / next frame.
+pub const PROB_PREV: &str = "prob_prev";
+pub const PROB_NEXT: &str = "prob_next";
+/// `[S, 1]` time gate g ∈ (0, 1): the blend weight is b_s·g.
+pub const GATE: &str = "gate";
+
+/// Raw extra outputs of the dynamic field: [flow to t−1 (3), flow to t+1 (3), p_{t→t−1},
+/// p_{t→t+1}, time-gate logit].
+pub const DYNAMIC_EXTRA: usize = 9;
+
+/// Initial logit of the time gate: g ≈ 0.98, so b starts as NSFF's b_s.
+const GATE_INIT_LOGIT: f32 = 4.0;
+
+/// The static field with NSFF's blend output.
+#[derive(Module, Debug)]
+pub struct StaticField {
+    pub inner: BaseField,
+}
+
+impl StaticField {
+    pub fn new(cfg: &NsffConfig, aabb: [[f32; 3]; 2], device: &Device) -> Self {
+        let mut inner = base_field(&cfg.base, aabb, 1, device);
+        if let BaseField::Fast(f) = &mut inner
+            && let Some(head) = f.extra.as_mut()
+        {
+            // Start static (b ≈ 0.05): the dynamic field sees each time from one camera only, so
+            // it should take over only where the static field cannot explain the video; starting
+            // at b = 0.5 leaves dynamic fog in novel views.
+            head.bias = Some(burn::module::Param::from_tensor(Tensor::full(
+                [1],
+                cfg.blend_init_logit,
+                device,
+            )));
+        }
+        StaticField { inner }
+    }
+
+    fn blend(raw: Extras) -> Extras {
+        let mut extras = Extras::default();
+        extras.push(BLEND, sigmoid(raw.expect(RAW_EXTRA)));
+        extras
+    }
+}
+
+impl Field for StaticField {
+    fn density(&self, positions: Tensor<2>, time: Option<Tensor<2>>) -> Density {
+        let d = self.inner.density(positions, time);
+        Density {
+            sigma: d.sigma,
+            extras: Self::blend(d.extras),
+        }
+    }
+
+    fn query(&self, query: FieldQuery<'_>) -> FieldOutputs {
+        let out = self.inner.query(query);
+        FieldOutputs {
+            sigma: out.sigma,
+            rgb: out.rgb,
+            extras: Self::blend(out.extras),
+        }
+    }
+
+    fn host_params(&self) -> Vec<Arc<HashGrid>> {
+        self.inner.host_params()
+    }
+}
+
+/// The space-time field with scene flow, disocclusion and the time gate. Queries need a time.
+#[derive(Module, Debug)]
+pub struct DynamicField {
+    pub inner: BaseField,
+    /// Scene flow is `flow_scale · tanh(raw)`.
+    pub flow_scale: f32,
+}
+
+impl DynamicField {
+    pub fn new(cfg: &NsffConfig, aabb: [[f32; 3]; 2], device: &Device) -> Self {
+        let seed = cfg.base.seed;
+        let mut inner = match cfg.base.preset {
+            Preset::Fast => {
+                let f = &cfg.base.fast;
+                BaseField::Fast(
+                    FastFieldConfig::new(cfg.dynamic_grid.clone(), aabb)
+                        .with_hidden(cfg.dynamic_width)
+                        .with_geo_features(f.geo_features)
+                        .with_color_hidden(cfg.dynamic_width)
+                        .with_sh_degree(cfg.dynamic_sh_degree)
+                        .with_color_layers(f.color_layers)
+                        .with_extra_outputs(DYNAMIC_EXTRA)
+                        .init(device, seed.wrapping_add(1)),
+                )
+            }
+            Preset::Vanilla => {
+                let v = &cfg.base.vanilla;
+                BaseField::Vanilla(
+                    VanillaFieldConfig::new()
+                        .with_width(v.width)
+                        .with_depth(v.depth)
+                        .with_input_dims(4)
+                        .with_extra_outputs(DYNAMIC_EXTRA)
+                        .init(device),
+                )
+            }
+        };
+        let head = match &mut inner {
+            BaseField::Fast(f) => f.extra.as_mut(),
+            BaseField::Vanilla(f) => f.extra.as_mut(),
+        };
+        if let Some(head) = head {
+            open_gate(head, device);
+        }
+        DynamicField {
+            inner,
+            flow_scale: cfg.flow_scale,
+        }
+    }
+
+    /// The named extras from the raw head `[S, 9]`.
+    fn extras(&self, raw: Extras) -> Extras {
+        let raw = raw.expect(RAW_EXTRA);
+        let n = raw.dims()[0];
+        let flow = raw.clone().slice([0..n, 0..6]).tanh() * self.flow_scale;
+        let prob = sigmoid(raw.clone().slice([0..n, 6..8]));
+        let mut extras = Extras::default();
+        extras.push(FLOW_PREV, flow.clone().slice([0..n, 0..3]));
+        extras.push(FLOW_NEXT, flow.slice([0..n, 3..6]));
+        extras.push(PROB_PREV, prob.clone().slice([0..n, 0..1]));
+        extras.push(PROB_NEXT, prob.slice([0..n, 1..2]));
+        extras.push(GATE, sigmoid(raw.slice([0..n, 8..9])));
+        extras
+    }
+}
+
+impl Field for DynamicField {
+    fn density(&self, positions: Tensor<2>, time: Option<Tensor<2>>) -> Density {
+        let d = self.inner.density(positions, time);
+        Density {
+            sigma: d.sigma,
+            extras: self.extras(d.extras),
+        }
+    }
+
+    fn query(&self, query: FieldQuery<'_>) -> FieldOutputs {
+        debug_assert!(query.time.is_some(), "the dynamic field needs a time");
+        let out = self.inner.query(query);
+        FieldOutputs {
+            sigma: out.sigma,
+            rgb: out.rgb,
+            extras: self.extras(out.extras),
+        }
+    }
+
+    fn host_params(&self) -> Vec<Arc<HashGrid>> {
+        self.inner.host_params()
+    }
+}
+
+/// Sets the time-gate output's bias to [`GATE_INIT_LOGIT`], keeping the others.
+fn open_gate(head: &mut burn::nn::Linear, device: &Device) {
+    let mut bias = head
+        .bias
+        .as_ref()
+        .and_then(|b| b.val().into_data().try_into_vec_as::<f32>().ok())
+        .unwrap_or_default();
+    bias.resize(DYNAMIC_EXTRA, 0.0);
+    bias[DYNAMIC_EXTRA - 1] = GATE_INIT_LOGIT;
+    head.bias = Some(burn::module::Param::from_tensor(Tensor::from_data(
+        burn::tensor::TensorData::new(bias, [DYNAMIC_EXTRA]),
+        device,
+    )));
+}
+
+/// A `[S, 1]` column holding one time for every sample.
+pub fn time_column(t: f32, n: usize, device: &Device) -> Tensor<2> {
+    Tensor::full([n, 1], t, device)
+}
