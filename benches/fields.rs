@@ -172,12 +172,7 @@ fn shell_grid(cfg: &TrainConfig) -> OccupancyGrid {
 fn render_benches(c: &mut Criterion) {
     let dev = Device::flex().autodiff();
     let (base, nsff_cfg) = configs();
-    let bounds = SceneBounds {
-        near: 2.0,
-        far: 6.0,
-        aabb: AABB,
-        open_far: false,
-    };
+    let bounds = SceneBounds::object(2.0, 6.0, AABB);
     let mut model = StaticModel::new(&base, bounds.clone(), &dev);
     model.occupancy = Some(shell_grid(&base));
     let mut nsff = NsffModel::new(&nsff_cfg, bounds, vec![0.0, 0.5, 1.0], true, &dev);

@@ -75,6 +75,17 @@ pub struct Density {
     pub extras: Extras,
 }
 
+impl Density {
+    /// The same density with its extras replaced by `f(extras)` (a field wrapping another one
+    /// names and activates the inner field's raw outputs this way).
+    pub fn map_extras(self, f: impl FnOnce(Extras) -> Extras) -> Self {
+        Density {
+            sigma: self.sigma,
+            extras: f(self.extras),
+        }
+    }
+}
+
 /// A full query's answer for `S` samples.
 #[derive(Clone, Debug)]
 pub struct FieldOutputs {
@@ -83,6 +94,16 @@ pub struct FieldOutputs {
     /// `[S, 3]` in [0, 1].
     pub rgb: Tensor<2>,
     pub extras: Extras,
+}
+
+impl FieldOutputs {
+    /// The same outputs with their extras replaced by `f(extras)`.
+    pub fn map_extras(self, f: impl FnOnce(Extras) -> Extras) -> Self {
+        FieldOutputs {
+            extras: f(self.extras),
+            ..self
+        }
+    }
 }
 
 /// What the scene is: see the module documentation for the contract.

@@ -18,3 +18,18 @@ pub fn read_back<const D: usize>(t: Tensor<D>, what: &'static str) -> Result<Vec
         msg: format!("{e:?}"),
     })
 }
+
+/// A `[N, C]` tensor's values where a failed read-back is a bug (tests, diagnostics): panics
+/// with the error.
+pub fn host(t: Tensor<2>) -> Vec<f32> {
+    read_back(t, "tensor").unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Panics unless `a` and `b` have the same length and differ by at most `tol` everywhere
+/// (tests comparing two render paths).
+pub fn assert_close(what: &str, a: &[f32], b: &[f32], tol: f32) {
+    assert_eq!(a.len(), b.len(), "{what}: lengths differ");
+    for (i, (x, y)) in a.iter().zip(b).enumerate() {
+        assert!((x - y).abs() <= tol, "{what}[{i}]: {x} vs {y}");
+    }
+}

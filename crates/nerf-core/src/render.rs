@@ -63,6 +63,7 @@ impl Component {
 }
 
 /// What lies behind the scene.
+#[allow(clippy::large_enum_variant)] // one per render call; boxing the tensor would not pay
 #[derive(Clone, Debug)]
 pub enum Background {
     /// Nothing is added (black, or scenes whose far end absorbs all light).
@@ -240,10 +241,7 @@ pub fn add_background_host(rgb: &mut [f32], opacity: &[f32], background: Option<
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn host(t: Tensor<2>) -> Vec<f32> {
-        t.into_data().try_into_vec_as::<f32>().unwrap()
-    }
+    use crate::readback::host;
 
     /// Two rays through two blended components with an extra channel only the second has,
     /// against the compositing formula recomputed in f64.

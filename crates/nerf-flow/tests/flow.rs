@@ -13,6 +13,7 @@ use nerf_flow::{
 };
 use nerf_synth::{Preset, Scene, Split, SynthConfig, SynthView};
 
+#[path = "../../nerf-data/tests/common/mod.rs"]
 mod common;
 use common::TempDir;
 

@@ -147,11 +147,12 @@ fn u64_le(b: &[u8]) -> u64 {
     u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]])
 }
 
-/// Adds a module's record, its host tables and an occupancy grid as sections named after
-/// `prefix`.
+/// Sections of the model parts are named after this.
+const MODEL: &str = "model";
+
+/// Adds a module's record, its host tables and an occupancy grid as the "model" sections.
 pub fn write_model_parts<M: Module>(
     s: &mut Sections,
-    prefix: &str,
     module: &M,
     host: &[Arc<HashGrid>],
     occupancy: Option<&OccupancyGrid>,
@@ -162,19 +163,19 @@ pub fn write_model_parts<M: Module>(
         .into_record()
         .into_bytes()
         .map_err(|e| ModelError::checkpoint(path, format!("cannot save model: {e:?}")))?;
-    s.push(prefix, bytes.to_vec());
+    s.push(MODEL, bytes.to_vec());
     for (k, grid) in host.iter().enumerate() {
-        s.push(&format!("{prefix}.grid{k}"), f32_bytes(&grid.table()));
+        s.push(&format!("{MODEL}.grid{k}"), f32_bytes(&grid.table()));
         let (step, m, v) = grid.adam_state();
         let mut adam = step.to_le_bytes().to_vec();
         adam.extend(f32_bytes(&m));
         adam.extend(f32_bytes(&v));
-        s.push(&format!("{prefix}.grid{k}_adam"), adam);
+        s.push(&format!("{MODEL}.grid{k}_adam"), adam);
     }
     if let Some(o) = occupancy {
-        s.push(&format!("{prefix}.occupancy"), f32_bytes(o.values()));
+        s.push(&format!("{MODEL}.occupancy"), f32_bytes(o.values()));
         s.push(
-            &format!("{prefix}.carved"),
+            &format!("{MODEL}.carved"),
             o.carved().iter().map(|&c| u8::from(c)).collect(),
         );
     }
@@ -185,20 +186,19 @@ pub fn write_model_parts<M: Module>(
 /// `host(&module)`) and `occupancy`.
 pub fn read_model_parts<M: Module>(
     s: &Sections,
-    prefix: &str,
     module: M,
     host: impl Fn(&M) -> Vec<Arc<HashGrid>>,
     occupancy: Option<&mut OccupancyGrid>,
     path: &Path,
 ) -> Result<M> {
     let record =
-        burn::store::ModuleRecord::from_bytes(Bytes::from_bytes_vec(s.require(prefix, path)?.to_vec()))
+        burn::store::ModuleRecord::from_bytes(Bytes::from_bytes_vec(s.require(MODEL, path)?.to_vec()))
             .map_err(|e| ModelError::checkpoint(path, format!("cannot read model: {e:?}")))?;
     let module = module
         .try_load_record(record)
         .map_err(|e| ModelError::checkpoint(path, format!("model does not match its config: {e:?}")))?;
     for (k, grid) in host(&module).iter().enumerate() {
-        let table = bytes_f32(s.require(&format!("{prefix}.grid{k}"), path)?);
+        let table = bytes_f32(s.require(&format!("{MODEL}.grid{k}"), path)?);
         let n = grid.num_params();
         grid.set_table(table).map_err(|want| {
             ModelError::checkpoint(
@@ -206,7 +206,7 @@ pub fn read_model_parts<M: Module>(
                 format!("hash table {k} has the wrong size (config needs {want})"),
             )
         })?;
-        let adam = s.require(&format!("{prefix}.grid{k}_adam"), path)?;
+        let adam = s.require(&format!("{MODEL}.grid{k}_adam"), path)?;
         if adam.len() != 8 + 8 * n {
             return Err(ModelError::checkpoint(
                 path,
@@ -220,8 +220,8 @@ pub fn read_model_parts<M: Module>(
         );
     }
     if let Some(o) = occupancy {
-        let values = bytes_f32(s.require(&format!("{prefix}.occupancy"), path)?);
-        let carved = s.require(&format!("{prefix}.carved"), path)?;
+        let values = bytes_f32(s.require(&format!("{MODEL}.occupancy"), path)?);
+        let carved = s.require(&format!("{MODEL}.carved"), path)?;
         if values.len() != o.num_cells() || carved.len() != o.num_cells() {
             return Err(ModelError::checkpoint(path, "occupancy grid has the wrong size"));
         }
@@ -235,14 +235,8 @@ pub fn read_model_parts<M: Module>(
 impl<F: FieldModule> StaticModel<F> {
     pub fn write_sections(&self, s: &mut Sections, path: &Path) -> Result<()> {
         s.push_json("bounds", &self.bounds, path)?;
-        write_model_parts(
-            s,
-            "model",
-            &self.fields,
-            &self.host_params(),
-            self.occupancy.as_ref(),
-            path,
-        )
+        let host = self.host_params();
+        write_model_parts(s, &self.fields, &host, self.occupancy.as_ref(), path)
     }
 
     /// Rebuilds the model that `cfg` describes from checkpoint sections; fields made by `build`.
@@ -255,14 +249,8 @@ impl<F: FieldModule> StaticModel<F> {
     ) -> Result<Self> {
         let bounds: SceneBounds = s.json("bounds", path)?;
         let mut model = StaticModel::with_field(cfg, bounds, device, build);
-        model.fields = read_model_parts(
-            s,
-            "model",
-            model.fields,
-            StaticFields::host_params,
-            model.occupancy.as_mut(),
-            path,
-        )?;
+        let host = StaticFields::host_params;
+        model.fields = read_model_parts(s, model.fields, host, model.occupancy.as_mut(), path)?;
         Ok(model)
     }
 }

@@ -17,7 +17,7 @@ use rand::rngs::StdRng;
 use crate::config::{Preset, TrainConfig};
 use crate::error::{ModelError, read_back};
 use crate::field::{BaseField, FastFieldConfig, FieldModule, VanillaFieldConfig};
-use crate::renderer::{self, Pass, Rendered, Sampling, SceneBounds, tensor};
+use crate::renderer::{self, Pass, Rendered, Sampling, SceneBounds, Target, tensor};
 
 /// The burn modules of a model (what the optimiser updates and checkpoints store).
 #[derive(Module, Debug)]
@@ -132,6 +132,12 @@ impl<F: FieldModule> StaticModel<F> {
         pass: Pass<'_>,
         device: &Device,
     ) -> Result<Rendered, ModelError> {
+        let target = Target {
+            rays,
+            bounds: &self.bounds,
+            background,
+            device,
+        };
         match (&self.sampling, &self.fields.proposal) {
             (
                 Sampling::Hierarchical {
@@ -145,11 +151,8 @@ impl<F: FieldModule> StaticModel<F> {
                 proposal,
                 &self.fields.field,
                 (*coarse, *fine, *spacing, *raw_noise_std),
-                rays,
-                &self.bounds,
-                background,
+                target,
                 pass,
-                device,
             ),
             (
                 Sampling::March {
@@ -169,11 +172,8 @@ impl<F: FieldModule> StaticModel<F> {
                     &self.fields.field,
                     self.occupancy.as_ref(),
                     (march, early, *stop_eps),
-                    rays,
-                    &self.bounds,
-                    background,
+                    target,
                     pass,
-                    device,
                 )
             }
             (Sampling::Hierarchical { .. }, None) => {
@@ -270,11 +270,8 @@ impl<F: FieldModule> StaticFields<F> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nerf_core::readback::{assert_close, host};
     use nerf_data::{Camera, Intrinsics, Pose};
-
-    fn host(t: burn::tensor::Tensor<2>) -> Vec<f32> {
-        t.into_data().try_into_vec_as::<f32>().unwrap()
-    }
 
     /// The differentiable render the trainer calls (autodiff device, whole batch) and the
     /// inference render (`valid()` module, plain device, chunks) give the same pixels for the
@@ -291,12 +288,7 @@ mod tests {
             cfg.vanilla.depth = 3;
             cfg.vanilla.coarse_samples = 16;
             cfg.vanilla.fine_samples = 16;
-            let bounds = SceneBounds {
-                near: 2.0,
-                far: 6.0,
-                aabb: [[-1.5; 3], [1.5; 3]],
-                open_far: false,
-            };
+            let bounds = SceneBounds::object(2.0, 6.0, [[-1.5; 3], [1.5; 3]]);
             let dev = Device::flex().autodiff();
             let model = StaticModel::new(&cfg, bounds, &dev);
             let train = model
@@ -314,10 +306,7 @@ mod tests {
                 ("depth", host(train.out.depth), infer.depth),
                 ("opacity", opacity, infer.opacity),
             ] {
-                assert_eq!(a.len(), b.len(), "{preset:?} {name}");
-                for (i, (x, y)) in a.iter().zip(&b).enumerate() {
-                    assert!((x - y).abs() <= 1e-5, "{preset:?} {name}[{i}]: {x} vs {y}");
-                }
+                assert_close(&format!("{preset:?} {name}"), &a, &b, 1e-5);
             }
         }
     }

@@ -30,6 +30,18 @@ pub struct SceneBounds {
     pub open_far: bool,
 }
 
+impl SceneBounds {
+    /// An object scene: rays from `near` to `far` through the box `aabb`, nothing beyond.
+    pub fn object(near: f32, far: f32, aabb: [[f32; 3]; 2]) -> Self {
+        SceneBounds {
+            near,
+            far,
+            aabb,
+            open_far: false,
+        }
+    }
+}
+
 /// Training renders jitter their samples (and may add density noise); inference renders do not.
 pub enum Pass<'a> {
     Train(&'a mut StdRng),
@@ -90,6 +102,15 @@ impl Sampling {
     }
 }
 
+/// What to render: rays through a scene, the background behind it, the device to render on.
+#[derive(Clone, Copy)]
+pub struct Target<'a> {
+    pub rays: &'a Rays,
+    pub bounds: &'a SceneBounds,
+    pub background: &'a Background,
+    pub device: &'a Device,
+}
+
 /// A render of `R` rays.
 #[derive(Clone, Debug)]
 pub struct Rendered {
@@ -120,18 +141,14 @@ pub fn density_host<F: FieldModule>(
 
 /// Occupancy marching: samples in the occupied cells, optionally cut where rays become opaque
 /// (densities from a no-grad pass), then one differentiable pass over the surviving samples.
-#[allow(clippy::too_many_arguments)]
 pub fn render_march<F: FieldModule>(
     field: &F,
     occupancy: Option<&OccupancyGrid>,
-    sampling: (&MarchConfig, bool, f32),
-    rays: &Rays,
-    bounds: &SceneBounds,
-    background: &Background,
+    (march, early_termination, stop_eps): (&MarchConfig, bool, f32),
+    target: Target<'_>,
     mut pass: Pass<'_>,
-    device: &Device,
 ) -> Result<Rendered, ModelError> {
-    let (march, early_termination, stop_eps) = sampling;
+    let (rays, bounds, background, device) = (target.rays, target.bounds, target.background, target.device);
     let mut samples = span("march", || {
         sampler::march(
             rays,
@@ -210,17 +227,14 @@ fn density_noise(n: usize, std: f32, pass: &mut Pass<'_>) -> Option<Vec<f32>> {
 
 /// Hierarchical sampling: the proposal field on stratified samples, the main field on the union
 /// of those and inverse-CDF samples drawn from the proposal's weights.
-#[allow(clippy::too_many_arguments)]
 pub fn render_hierarchical<F: Field>(
     proposal: &F,
     field: &F,
     (coarse, fine, spacing, noise_std): (usize, usize, Spacing, f32),
-    rays: &Rays,
-    bounds: &SceneBounds,
-    background: &Background,
+    target: Target<'_>,
     mut pass: Pass<'_>,
-    device: &Device,
 ) -> Result<Rendered, ModelError> {
+    let (rays, bounds, background, device) = (target.rays, target.bounds, target.background, target.device);
     let n = rays.len();
     let options = RenderOptions {
         open_far: bounds.open_far,

@@ -29,14 +29,8 @@ pub struct NsffState {
 pub fn write_model(model: &NsffModel, s: &mut Sections, path: &Path) -> Result<()> {
     s.push_json("bounds", &model.bounds, path)?;
     s.push_json("times", &model.times, path)?;
-    write_model_parts(
-        s,
-        "model",
-        &model.fields,
-        &model.host_params(),
-        model.occupancy.as_ref(),
-        path,
-    )
+    let host = model.host_params();
+    write_model_parts(s, &model.fields, &host, model.occupancy.as_ref(), path)
 }
 
 /// Rebuilds the model `cfg` describes (with or without a dynamic field) from checkpoint sections.
@@ -54,14 +48,8 @@ pub fn read_model(
         dynamic,
         device,
     );
-    model.fields = read_model_parts(
-        s,
-        "model",
-        model.fields,
-        NsffFields::host_params,
-        model.occupancy.as_mut(),
-        path,
-    )?;
+    let host = NsffFields::host_params;
+    model.fields = read_model_parts(s, model.fields, host, model.occupancy.as_mut(), path)?;
     Ok(model)
 }
 

@@ -69,21 +69,9 @@ pub fn render_at(
     Ok(out)
 }
 
-/// Scores held-out views (each with its own camera and time), optionally saving
-/// ground truth | render pairs into `save`. `step` and `train_seconds` are left for the caller.
-pub fn evaluate(
-    model: &NsffModel,
-    dataset: &Dataset,
-    views: &[usize],
-    with_ssim: bool,
-    save: Option<&Path>,
-    device: &Device,
-) -> Result<EvalResult> {
-    Ok(evaluate_with_depth(model, dataset, views, with_ssim, save, device)?.0)
-}
-
-/// [`evaluate`], also returning each view's rendered depth (`[H*W]`, Σw·t over the opacity,
-/// camera depth for Euclidean scenes).
+/// Scores held-out views (each with its own camera and time), optionally saving ground truth |
+/// render pairs into `save`, and returns each view's rendered depth (`[H*W]`, Σw·t over the
+/// opacity, camera depth for Euclidean scenes). `step` and `train_seconds` are left for the caller.
 pub fn evaluate_with_depth(
     model: &NsffModel,
     dataset: &Dataset,

@@ -73,20 +73,11 @@ impl StaticField {
 
 impl Field for StaticField {
     fn density(&self, positions: Tensor<2>, time: Option<Tensor<2>>) -> Density {
-        let d = self.inner.density(positions, time);
-        Density {
-            sigma: d.sigma,
-            extras: Self::blend(d.extras),
-        }
+        self.inner.density(positions, time).map_extras(Self::blend)
     }
 
     fn query(&self, query: FieldQuery<'_>) -> FieldOutputs {
-        let out = self.inner.query(query);
-        FieldOutputs {
-            sigma: out.sigma,
-            rgb: out.rgb,
-            extras: Self::blend(out.extras),
-        }
+        self.inner.query(query).map_extras(Self::blend)
     }
 
     fn host_params(&self) -> Vec<Arc<HashGrid>> {
@@ -162,21 +153,12 @@ impl DynamicField {
 
 impl Field for DynamicField {
     fn density(&self, positions: Tensor<2>, time: Option<Tensor<2>>) -> Density {
-        let d = self.inner.density(positions, time);
-        Density {
-            sigma: d.sigma,
-            extras: self.extras(d.extras),
-        }
+        self.inner.density(positions, time).map_extras(|e| self.extras(e))
     }
 
     fn query(&self, query: FieldQuery<'_>) -> FieldOutputs {
         debug_assert!(query.time.is_some(), "the dynamic field needs a time");
-        let out = self.inner.query(query);
-        FieldOutputs {
-            sigma: out.sigma,
-            rgb: out.rgb,
-            extras: self.extras(out.extras),
-        }
+        self.inner.query(query).map_extras(|e| self.extras(e))
     }
 
     fn host_params(&self) -> Vec<Arc<HashGrid>> {

@@ -44,11 +44,8 @@ pub fn project(points: Tensor<2>, camera: &Camera, device: &Device) -> Tensor<2>
 mod tests {
     use super::*;
     use burn::tensor::TensorData;
+    use nerf_core::readback::host;
     use nerf_data::{Intrinsics, Pose};
-
-    fn host(t: Tensor<2>) -> Vec<f32> {
-        t.into_data().try_into_vec_as::<f32>().unwrap()
-    }
 
     #[test]
     fn projection_matches_camera_project_and_ndc_inverts() {

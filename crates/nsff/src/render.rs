@@ -382,11 +382,8 @@ mod tests {
     use super::*;
     use crate::config::NsffConfig;
     use nerf::config::Preset;
+    use nerf_core::readback::{assert_close, host};
     use nerf_data::{Format, Intrinsics, Pose};
-
-    fn host(t: Tensor<2>) -> Vec<f32> {
-        t.into_data().try_into_vec_as::<f32>().unwrap()
-    }
 
     /// The training step's combined render (autodiff device, both fields queried everywhere) and
     /// the inference render (plain device, blend skip off) agree for the same parameters and
@@ -398,12 +395,7 @@ mod tests {
         cfg.blend_skip = 0.0;
         // A blend weight well inside (0, 1), so both components show.
         cfg.blend_init_logit = 0.0;
-        let bounds = SceneBounds {
-            near: 2.0,
-            far: 6.0,
-            aabb: [[-1.5; 3], [1.5; 3]],
-            open_far: false,
-        };
+        let bounds = SceneBounds::object(2.0, 6.0, [[-1.5; 3], [1.5; 3]]);
         let dev = Device::flex().autodiff();
         let mut model = NsffModel::new(&cfg, bounds.clone(), vec![0.0, 0.5, 1.0], true, &dev);
         model.occupancy = None;
@@ -424,10 +416,7 @@ mod tests {
                 ("depth", host(train.depth), infer.depth),
                 ("opacity", opacity, infer.opacity),
             ] {
-                assert_eq!(a.len(), b.len(), "{name}");
-                for (i, (x, y)) in a.iter().zip(&b).enumerate() {
-                    assert!((x - y).abs() <= 1e-5, "t = {time}, {name}[{i}]: {x} vs {y}");
-                }
+                assert_close(&format!("t = {time}, {name}"), &a, &b, 1e-5);
             }
         }
     }
@@ -447,12 +436,7 @@ mod tests {
         let mut dataset =
             Dataset::blender_object("unused".into(), Format::DNerf, [0.2, 0.3, 0.4], Vec::new());
         dataset.aabb = aabb;
-        let bounds = SceneBounds {
-            near: 2.0,
-            far: 6.0,
-            aabb,
-            open_far: false,
-        };
+        let bounds = SceneBounds::object(2.0, 6.0, aabb);
         let pose = Pose::look_at([0.3, 0.2, 3.5], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
         let camera = Camera::new(Intrinsics::centered(20.0, 16, 12), pose);
         let times = vec![0.0f32, 0.5, 1.0];

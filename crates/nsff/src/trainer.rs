@@ -652,15 +652,10 @@ impl nerf::train_loop::Trainable for NsffTrainer {
     }
     fn quick_eval(&mut self) -> Result<f64> {
         let views = crate::eval::quick_views(&self.video.dataset);
-        Ok(crate::eval::evaluate(
-            &self.model,
-            &self.video.dataset,
-            &views,
-            false,
-            None,
-            &self.device,
-        )?
-        .mean_psnr)
+        let ds = &self.video.dataset;
+        let (result, _) =
+            crate::eval::evaluate_with_depth(&self.model, ds, &views, false, None, &self.device)?;
+        Ok(result.mean_psnr)
     }
     fn status(&self) -> String {
         self.model.occupancy.as_ref().map_or(String::new(), |o| {

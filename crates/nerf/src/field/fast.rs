@@ -17,7 +17,7 @@ use nerf_core::encoding::{HashGrid, HashGridConfig};
 use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery};
 use nerf_core::mlp::{Mlp, MlpConfig};
 
-use super::{RAW_EXTRA, normalize};
+use super::normalize;
 
 #[derive(Config, Debug)]
 pub struct FastFieldConfig {
@@ -104,12 +104,8 @@ impl FastField {
             .exp()
     }
 
-    fn extras(&self, geo: Tensor<2>) -> Extras {
-        let mut extras = Extras::default();
-        if let Some(head) = &self.extra {
-            extras.push(RAW_EXTRA, head.forward(geo));
-        }
-        extras
+    fn extras(&self, features: Tensor<2>) -> Extras {
+        super::raw_extras(self.extra.as_ref(), features)
     }
 }
 

@@ -56,6 +56,15 @@ impl Field for BaseField {
     }
 }
 
+/// The raw outputs of an optional extra head on features `[S, W]`, named [`RAW_EXTRA`].
+pub fn raw_extras(head: Option<&burn::nn::Linear>, features: Tensor<2>) -> nerf_core::field::Extras {
+    let mut extras = nerf_core::field::Extras::default();
+    if let Some(head) = head {
+        extras.push(RAW_EXTRA, head.forward(features));
+    }
+    extras
+}
+
 /// Maps world positions inside `aabb` to [0, 1]^3 (differentiable; used by grid encodings).
 pub fn normalize(positions: Tensor<2>, aabb: [[f32; 3]; 2]) -> Tensor<2> {
     let device = positions.device();

@@ -10,8 +10,6 @@ use burn::tensor::{Device, Tensor, TensorData};
 use nerf_core::encoding::{PositionalEncoding, PositionalEncodingConfig};
 use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery};
 
-use super::RAW_EXTRA;
-
 #[derive(Config, Debug)]
 pub struct VanillaFieldConfig {
     /// Input dimension: 3 (x, y, z) or 4 (x, y, z, t for NSFF's dynamic field).
@@ -98,12 +96,8 @@ impl VanillaField {
         h
     }
 
-    fn extras(&self, h: Tensor<2>) -> Extras {
-        let mut extras = Extras::default();
-        if let Some(head) = &self.extra {
-            extras.push(RAW_EXTRA, head.forward(h));
-        }
-        extras
+    fn extras(&self, features: Tensor<2>) -> Extras {
+        super::raw_extras(self.extra.as_ref(), features)
     }
 }
 
