@@ -168,17 +168,16 @@ impl Field for DynamicField {
 
 /// Sets the time-gate output's bias to [`GATE_INIT_LOGIT`], keeping the others.
 fn open_gate(head: &mut burn::nn::Linear, device: &Device) {
-    let mut bias = head
-        .bias
-        .as_ref()
-        .and_then(|b| b.val().into_data().try_into_vec_as::<f32>().ok())
-        .unwrap_or_default();
-    bias.resize(DYNAMIC_EXTRA, 0.0);
-    bias[DYNAMIC_EXTRA - 1] = GATE_INIT_LOGIT;
-    head.bias = Some(burn::module::Param::from_tensor(Tensor::from_data(
-        burn::tensor::TensorData::new(bias, [DYNAMIC_EXTRA]),
-        device,
-    )));
+    let bias = match &head.bias {
+        Some(b) => b.val(),
+        None => Tensor::zeros([DYNAMIC_EXTRA], device),
+    };
+    let gate = Tensor::full([1], GATE_INIT_LOGIT, device);
+    // A new leaf: the parameter must not hang off the graph of the old bias.
+    let bias = bias
+        .slice_assign([DYNAMIC_EXTRA - 1..DYNAMIC_EXTRA], gate)
+        .detach();
+    head.bias = Some(burn::module::Param::from_tensor(bias));
 }
 
 /// A `[S, 1]` column holding one time for every sample.
