@@ -146,14 +146,16 @@ impl DynamicField {
         extras.push(FLOW_NEXT, flow.slice([0..n, 3..6]));
         extras.push(PROB_PREV, prob.clone().slice([0..n, 0..1]));
         extras.push(PROB_NEXT, prob.slice([0..n, 1..2]));
-        extras.push(GATE, sigmoid(raw.slice([0..n, 8..9])));
+        extras.push(GATE, sigmoid(raw.slice([0..n, DYNAMIC_EXTRA - 1..DYNAMIC_EXTRA])));
         extras
     }
 }
 
 impl Field for DynamicField {
+    /// Density with the time gate only (what occupancy and sparsity need; scene flow and
+    /// disocclusion come with full queries).
     fn density(&self, positions: Tensor<2>, time: Option<Tensor<2>>) -> Density {
-        self.inner.density(positions, time).map_extras(|e| self.extras(e))
+        self.inner.density(positions, time).map_extras(gate_only)
     }
 
     fn query(&self, query: FieldQuery<'_>) -> FieldOutputs {
@@ -164,6 +166,15 @@ impl Field for DynamicField {
     fn host_params(&self) -> Vec<Arc<HashGrid>> {
         self.inner.host_params()
     }
+}
+
+/// The time gate g = sigmoid(raw logit) from the raw head `[S, 9]`.
+fn gate_only(raw: Extras) -> Extras {
+    let raw = raw.expect(RAW_EXTRA);
+    let n = raw.dims()[0];
+    let mut extras = Extras::default();
+    extras.push(GATE, sigmoid(raw.slice([0..n, DYNAMIC_EXTRA - 1..DYNAMIC_EXTRA])));
+    extras
 }
 
 /// Sets the time-gate output's bias to [`GATE_INIT_LOGIT`], keeping the others.
