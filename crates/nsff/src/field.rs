@@ -185,9 +185,7 @@ fn open_gate(head: &mut burn::nn::Linear, device: &Device) {
     };
     let gate = Tensor::full([1], GATE_INIT_LOGIT, device);
     // A new leaf: the parameter must not hang off the graph of the old bias.
-    let bias = bias
-        .slice_assign([DYNAMIC_EXTRA - 1..DYNAMIC_EXTRA], gate)
-        .detach();
+    let bias = Tensor::cat(vec![bias.narrow(0, 0, DYNAMIC_EXTRA - 1), gate], 0).detach();
     head.bias = Some(burn::module::Param::from_tensor(bias));
 }
 
