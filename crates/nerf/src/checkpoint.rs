@@ -16,7 +16,7 @@ use nerf_core::occupancy::OccupancyGrid;
 use crate::config::TrainConfig;
 use crate::error::{ModelError, Result};
 use crate::field::{BaseField, FieldModule};
-use crate::model::{FieldBuilder, StaticFields, StaticModel, base_field};
+use crate::model::{FieldBuilder, StaticFields, StaticModel, preset_field};
 use crate::renderer::SceneBounds;
 
 /// What a static run's checkpoint records besides the model.
@@ -40,9 +40,7 @@ pub struct TrainedModel<F: Module = BaseField> {
 
 /// Loads `run_dir/checkpoint.bin` written by `nerf train`.
 pub fn load_trained(run_dir: &Path) -> Result<TrainedModel> {
-    load_trained_with_field(run_dir, |cfg, bounds, device| {
-        base_field(cfg, bounds.aabb, 0, device)
-    })
+    load_trained_with_field(run_dir, preset_field)
 }
 
 /// [`load_trained`] for a run whose fields `build` makes.

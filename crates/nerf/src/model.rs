@@ -90,10 +90,13 @@ pub fn fast_config(cfg: &TrainConfig, aabb: [[f32; 3]; 2], extra_outputs: usize)
 impl StaticModel<BaseField> {
     /// A freshly initialised model of `cfg`'s preset.
     pub fn new(cfg: &TrainConfig, bounds: SceneBounds, device: &Device) -> Self {
-        StaticModel::with_field(cfg, bounds, device, |cfg, bounds, device| {
-            base_field(cfg, bounds.aabb, 0, device)
-        })
+        StaticModel::with_field(cfg, bounds, device, preset_field)
     }
+}
+
+/// The preset's field over the scene box: the [`FieldBuilder`] of the `nerf` binary's model.
+pub fn preset_field(cfg: &TrainConfig, bounds: &SceneBounds, device: &Device) -> BaseField {
+    base_field(cfg, bounds.aabb, 0, device)
 }
 
 /// Builds a model's field from the config (called once per field: the vanilla preset's
@@ -110,9 +113,10 @@ impl<F: FieldModule> StaticModel<F> {
     ) -> Self {
         device.seed(cfg.seed);
         let sampling = Sampling::from_config(cfg);
+        // The proposal (coarse) field is built first, so a seed gives the same initialisation
+        // as before the field trait.
         let proposal = matches!(sampling, Sampling::Hierarchical { .. }).then(|| build(cfg, &bounds, device));
         let field = build(cfg, &bounds, device);
-        // Vanilla: coarse is built first, as before the field trait, so seeds give the same init.
         let fields = StaticFields { field, proposal };
         let occupancy = (matches!(sampling, Sampling::March { .. }) && cfg.fast.use_occupancy)
             .then(|| OccupancyGrid::new(cfg.fast.occupancy.clone(), bounds.aabb));

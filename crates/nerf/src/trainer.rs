@@ -16,7 +16,7 @@ use crate::checkpoint::{Sections, TrainState};
 use crate::config::{Preset, TrainConfig};
 use crate::error::{ModelError, Result, read_scalar};
 use crate::field::{BaseField, FieldModule};
-use crate::model::{FieldBuilder, StaticModel, base_field, scene_bounds};
+use crate::model::{FieldBuilder, StaticModel, preset_field, scene_bounds};
 use crate::optimizer::Optimizer;
 use crate::renderer::{Pass, tensor};
 
@@ -51,11 +51,6 @@ pub fn device(cfg: &TrainConfig, train: bool) -> Result<Device> {
         msg,
     })?;
     Ok(if train { device.autodiff() } else { device })
-}
-
-/// The preset's field (the `nerf` binary's model).
-fn preset_field(cfg: &TrainConfig, bounds: &crate::renderer::SceneBounds, device: &Device) -> BaseField {
-    base_field(cfg, bounds.aabb, 0, device)
 }
 
 impl Trainer<BaseField> {
