@@ -29,6 +29,7 @@
 //! - with [`SynthConfig::mono_disparity`], video presets: `disp/train/r_000.npy`, a simulated
 //!   monocular disparity (float32 H×W, unknown scale and shift per frame, smoothed and noisy).
 
+mod family;
 mod presets;
 mod scene;
 mod texture;
@@ -38,6 +39,7 @@ mod writer;
 use std::fmt;
 use std::str::FromStr;
 
+pub use family::{Backdrop, MoverMotion, PathKind, Speed, Variation};
 pub use scene::{Light, Motion, Object, SCENE_FILE, Scene, Shape, Split, SynthView, ViewKind};
 pub use texture::{Pattern, Texture};
 pub use trace::{RayHit, RenderOutput};
@@ -53,14 +55,24 @@ pub enum Preset {
     Dynamic,
     /// [`Preset::Dynamic`] with every motion removed: a video without independent motion.
     StaticVideo,
+    /// A family of monocular videos: the seed draws the background, one to three movers
+    /// (translation, spin, non-rigid deformation; slow or fast), the camera path (short or
+    /// wide arc, forward motion, hand-held), the frame count and the resolution
+    /// ([`Variation`]).
+    Family,
 }
 
 impl Preset {
-    pub const ALL: [Preset; 3] = [Preset::Static, Preset::Dynamic, Preset::StaticVideo];
+    pub const ALL: [Preset; 4] = [
+        Preset::Static,
+        Preset::Dynamic,
+        Preset::StaticVideo,
+        Preset::Family,
+    ];
 
     /// Video presets have one camera per time step, `time` in the JSON and optical flow.
     pub fn is_video(self) -> bool {
-        matches!(self, Preset::Dynamic | Preset::StaticVideo)
+        matches!(self, Preset::Dynamic | Preset::StaticVideo | Preset::Family)
     }
 
     pub fn as_str(self) -> &'static str {
@@ -68,6 +80,7 @@ impl Preset {
             Preset::Static => "static",
             Preset::Dynamic => "dynamic",
             Preset::StaticVideo => "static_video",
+            Preset::Family => "family",
         }
     }
 }
@@ -88,7 +101,7 @@ impl FromStr for Preset {
             .into_iter()
             .find(|p| p.as_str() == norm)
             .ok_or_else(|| {
-                format!("unknown synthetic preset '{s}' (expected static, dynamic or static_video)")
+                format!("unknown synthetic preset '{s}' (expected static, dynamic, static_video or family)")
             })
     }
 }
@@ -117,7 +130,7 @@ impl SynthConfig {
     pub fn new(preset: Preset) -> Self {
         let (width, height, frames, test_views) = match preset {
             Preset::Static => (100, 100, 100, 20),
-            Preset::Dynamic | Preset::StaticVideo => (128, 96, 24, 8),
+            Preset::Dynamic | Preset::StaticVideo | Preset::Family => (128, 96, 24, 8),
         };
         SynthConfig {
             preset,
@@ -128,6 +141,18 @@ impl SynthConfig {
             test_views,
             mono_disparity: false,
         }
+    }
+
+    /// [`SynthConfig::new`] at `seed`; for the family the frame count and the resolution are
+    /// the seed's draw too.
+    pub fn seeded(preset: Preset, seed: u64) -> Self {
+        let cfg = SynthConfig::new(preset).with_seed(seed);
+        if preset != Preset::Family {
+            return cfg;
+        }
+        let v = Variation::draw(seed);
+        let tests = cfg.test_views;
+        cfg.with_size(v.width, v.height).with_views(v.frames, tests)
     }
 
     pub fn with_seed(mut self, seed: u64) -> Self {

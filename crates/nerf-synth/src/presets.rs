@@ -8,36 +8,38 @@ use super::{Preset, SynthConfig};
 use nerf_data::math::{self, Vec3};
 
 /// Height of the ground square and its half side; everything fits in [-1.5, 1.5]³.
-const GROUND_Z: f64 = -0.5;
-const GROUND_HALF: f64 = 1.3;
+pub(super) const GROUND_Z: f64 = -0.5;
+pub(super) const GROUND_HALF: f64 = 1.3;
 /// Objects stand within this distance of the vertical axis (so most views see all of them).
-const LAYOUT_RADIUS: f64 = 1.2;
-const CAMERA_RADIUS: f64 = 4.0;
+pub(super) const LAYOUT_RADIUS: f64 = 1.2;
+pub(super) const CAMERA_RADIUS: f64 = 4.0;
 /// Azimuth swept by the video camera over the whole sequence, degrees.
 const ARC_DEG: f64 = 80.0;
 /// Half side of the moving cube and the height of its centre above the ground.
 const MOVER_HALF: f64 = 0.25;
 const MOVER_LIFT: f64 = 0.6;
 
-const STREAM_LAYOUT: u64 = 1;
+pub(super) const STREAM_LAYOUT: u64 = 1;
 const STREAM_TRAIN: u64 = 2;
 const STREAM_TEST: u64 = 3;
+pub(super) const STREAM_SHAKE: u64 = 4;
+pub(super) const STREAM_VARIATION: u64 = 5;
 
 /// Rounds to 1e-9: stored values then have short decimal forms that JSON parsers read back
 /// exactly, so a reloaded `scene.json` is bit-identical.
-fn q(v: f64) -> f64 {
+pub(super) fn q(v: f64) -> f64 {
     (v * 1e9).round() / 1e9
 }
 
-fn qv(v: Vec3) -> Vec3 {
+pub(super) fn qv(v: Vec3) -> Vec3 {
     v.map(q)
 }
 
 /// SplitMix64.
-struct Rng(u64);
+pub(super) struct Rng(u64);
 
 impl Rng {
-    fn new(seed: u64, stream: u64) -> Self {
+    pub(super) fn new(seed: u64, stream: u64) -> Self {
         Rng(mix64(
             seed ^ mix64(
                 stream
@@ -47,30 +49,30 @@ impl Rng {
         ))
     }
 
-    fn next_u64(&mut self) -> u64 {
+    pub(super) fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         mix64(self.0)
     }
 
     /// Uniform in [0, 1).
-    fn unit(&mut self) -> f64 {
+    pub(super) fn unit(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
     }
 
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
+    pub(super) fn range(&mut self, lo: f64, hi: f64) -> f64 {
         lo + (hi - lo) * self.unit()
     }
 
-    fn below(&mut self, n: usize) -> usize {
+    pub(super) fn below(&mut self, n: usize) -> usize {
         (self.next_u64() % n as u64) as usize
     }
 
-    fn coin(&mut self) -> bool {
+    pub(super) fn coin(&mut self) -> bool {
         self.next_u64() >> 63 == 1
     }
 
     /// Uniform direction (rejection sampling in the unit ball).
-    fn unit_vector(&mut self) -> Vec3 {
+    pub(super) fn unit_vector(&mut self) -> Vec3 {
         loop {
             let v = [
                 self.range(-1.0, 1.0),
@@ -84,7 +86,7 @@ impl Rng {
         }
     }
 
-    fn shuffle<T>(&mut self, items: &mut [T]) {
+    pub(super) fn shuffle<T>(&mut self, items: &mut [T]) {
         for i in (1..items.len()).rev() {
             let j = self.below(i + 1);
             items.swap(i, j);
@@ -110,8 +112,10 @@ pub(super) fn build(cfg: &SynthConfig) -> Scene {
         Preset::Dynamic | Preset::StaticVideo => {
             let (objects, path) = video_layout(cfg.seed, cfg.preset == Preset::Dynamic);
             scene.objects = objects;
-            scene.views = video_views(&path, cfg.frames, cfg.test_views);
+            let mut shake = Rng::new(cfg.seed, STREAM_SHAKE);
+            scene.views = video_views(&path, cfg.frames, cfg.test_views, &mut shake);
         }
+        Preset::Family => super::family::build(cfg, &mut scene),
     }
     scene
 }
@@ -126,7 +130,7 @@ fn name(k: usize, digits: usize) -> String {
 }
 
 /// A point at `radius` from the origin, azimuth from +x towards +y, elevation above the xy-plane.
-fn spherical(radius: f64, az_deg: f64, el_deg: f64) -> Vec3 {
+pub(super) fn spherical(radius: f64, az_deg: f64, el_deg: f64) -> Vec3 {
     let (az, el) = (az_deg.to_radians(), el_deg.to_radians());
     qv([
         radius * el.cos() * az.cos(),
@@ -150,7 +154,7 @@ fn orbit_view(rng: &mut Rng, split: Split, name: String) -> SynthView {
 }
 
 /// HSV (all in [0, 1]) to RGB.
-fn hsv(h: f64, s: f64, v: f64) -> Vec3 {
+pub(super) fn hsv(h: f64, s: f64, v: f64) -> Vec3 {
     let h6 = (h - h.floor()) * 6.0;
     let f = h6 - h6.floor();
     let (p, qq, t) = (v * (1.0 - s), v * (1.0 - s * f), v * (1.0 - s * (1.0 - f)));
@@ -165,7 +169,7 @@ fn hsv(h: f64, s: f64, v: f64) -> Vec3 {
     qv(rgb)
 }
 
-fn texture(rng: &mut Rng, pattern: Pattern, colors: [Vec3; 2]) -> Texture {
+pub(super) fn texture(rng: &mut Rng, pattern: Pattern, colors: [Vec3; 2]) -> Texture {
     Texture {
         pattern,
         colors,
@@ -177,7 +181,7 @@ fn texture(rng: &mut Rng, pattern: Pattern, colors: [Vec3; 2]) -> Texture {
 }
 
 /// A bright colour and a darker, contrasting one.
-fn palette(rng: &mut Rng) -> [Vec3; 2] {
+pub(super) fn palette(rng: &mut Rng) -> [Vec3; 2] {
     let hue = rng.unit();
     [
         hsv(hue, rng.range(0.55, 0.9), rng.range(0.8, 1.0)),
@@ -189,7 +193,7 @@ fn palette(rng: &mut Rng) -> [Vec3; 2] {
     ]
 }
 
-fn random_texture(rng: &mut Rng) -> Texture {
+pub(super) fn random_texture(rng: &mut Rng) -> Texture {
     let colors = palette(rng);
     let pattern = match rng.below(4) {
         0 => Pattern::Checker {
@@ -210,7 +214,7 @@ fn random_texture(rng: &mut Rng) -> Texture {
 }
 
 /// The textured ground square every preset stands on.
-fn ground(rng: &mut Rng) -> Object {
+pub(super) fn ground(rng: &mut Rng) -> Object {
     let hue = rng.unit();
     let colors = [hsv(hue, 0.15, 0.92), hsv(hue + 0.5, 0.45, 0.5)];
     Object {
@@ -227,7 +231,7 @@ fn ground(rng: &mut Rng) -> Object {
 }
 
 #[derive(Clone, Copy)]
-enum Kind {
+pub(super) enum Kind {
     Sphere,
     Cube,
     Block,
@@ -236,18 +240,18 @@ enum Kind {
 }
 
 /// A shape of `kind` resting on (or, for the plate, floating tilted just above) the ground.
-struct Placed {
-    shape: Shape,
+pub(super) struct Placed {
+    pub shape: Shape,
     /// Height of the centre above the ground.
-    lift: f64,
+    pub lift: f64,
     /// Radius of the object's footprint around its centre, for non-overlapping placement.
-    footprint: f64,
-    rotation_axis: Vec3,
-    rotation_deg: f64,
-    label: &'static str,
+    pub footprint: f64,
+    pub rotation_axis: Vec3,
+    pub rotation_deg: f64,
+    pub label: &'static str,
 }
 
-fn random_shape(rng: &mut Rng, kind: Kind) -> Placed {
+pub(super) fn random_shape(rng: &mut Rng, kind: Kind) -> Placed {
     let about_z = |rng: &mut Rng| ([0.0, 0.0, 1.0], q(rng.range(0.0, 90.0)));
     match kind {
         Kind::Sphere => {
@@ -327,7 +331,7 @@ fn random_shape(rng: &mut Rng, kind: Kind) -> Placed {
 
 /// A ground position for a footprint of `radius` that clears `placed` and satisfies `clear`;
 /// `None` when no free spot turns up (the object is then left out, deterministically).
-fn place(
+pub(super) fn place(
     rng: &mut Rng,
     radius: f64,
     placed: &[([f64; 2], f64)],
@@ -347,7 +351,7 @@ fn place(
 }
 
 /// Adds up to `count` static objects of the given kinds, standing on the ground.
-fn add_static_objects(
+pub(super) fn add_static_objects(
     rng: &mut Rng,
     objects: &mut Vec<Object>,
     kinds: &[Kind],
@@ -384,18 +388,41 @@ fn static_objects(seed: u64) -> Vec<Object> {
     objects
 }
 
-/// The video camera path: an arc at radius 4 around the origin.
-struct CameraPath {
-    az_mid_deg: f64,
-    el_deg: f64,
+/// The video camera path: an arc around the origin, looking at it, possibly closing in
+/// (forward motion) and shaken per frame (hand-held).
+pub(super) struct CameraPath {
+    pub az_mid_deg: f64,
+    pub el_deg: f64,
+    /// Azimuth swept over the whole sequence.
+    pub arc_deg: f64,
+    /// Elevation rises by this much mid-sequence (half a sine).
+    pub bob_deg: f64,
+    /// Distance from the origin at the first and the last frame.
+    pub radius: [f64; 2],
+    /// Hand-held shake of the training frames: per-frame azimuth/elevation offsets up to this
+    /// many degrees, and look-at offsets up to a tenth of it in scene units; 0 = none.
+    pub shake_deg: f64,
 }
 
 impl CameraPath {
+    /// The `dynamic` preset's path: an 80° arc at radius 4.
+    pub(super) fn arc(az_mid_deg: f64, el_deg: f64) -> Self {
+        CameraPath {
+            az_mid_deg,
+            el_deg,
+            arc_deg: ARC_DEG,
+            bob_deg: 6.0,
+            radius: [CAMERA_RADIUS; 2],
+            shake_deg: 0.0,
+        }
+    }
+
     /// Camera position at path parameter s ∈ [0, 1] (s = time for the training frames).
     fn eye(&self, s: f64, extra_az_deg: f64, extra_el_deg: f64) -> Vec3 {
-        let az = self.az_mid_deg + ARC_DEG * (s - 0.5) + extra_az_deg;
-        let el = self.el_deg + 6.0 * (std::f64::consts::PI * s).sin() + extra_el_deg;
-        spherical(CAMERA_RADIUS, az, el)
+        let az = self.az_mid_deg + self.arc_deg * (s - 0.5) + extra_az_deg;
+        let el = self.el_deg + self.bob_deg * (std::f64::consts::PI * s).sin() + extra_el_deg;
+        let radius = self.radius[0] + (self.radius[1] - self.radius[0]) * s;
+        spherical(radius, az, el)
     }
 }
 
@@ -448,6 +475,7 @@ fn video_layout(seed: u64, moving: bool) -> (Vec<Object>, CameraPath) {
             wobble_cycles: 1.0,
             spin_axis,
             spin_deg,
+            ..Motion::identity()
         },
     };
     if !moving {
@@ -470,14 +498,14 @@ fn video_layout(seed: u64, moving: bool) -> (Vec<Object>, CameraPath) {
 
     // The camera looks across the motion, from either side.
     let side = if rng.coin() { 90.0 } else { -90.0 };
-    let path = CameraPath {
-        az_mid_deg: phi.to_degrees() + side + rng.range(-20.0, 20.0),
-        el_deg: rng.range(25.0, 33.0),
-    };
+    let path = CameraPath::arc(
+        phi.to_degrees() + side + rng.range(-20.0, 20.0),
+        rng.range(25.0, 33.0),
+    );
     (objects, path)
 }
 
-fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+pub(super) fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     let (ab, ap) = ([b[0] - a[0], b[1] - a[1]], [p[0] - a[0], p[1] - a[1]]);
     let len2 = ab[0] * ab[0] + ab[1] * ab[1];
     let s = if len2 > 0.0 {
@@ -499,7 +527,14 @@ fn spread(m: usize, count: usize, max: usize) -> usize {
 
 /// Training frames along the arc with time i/(N−1); test views: off-path cameras (±25° azimuth,
 /// +12° elevation) at training times, then on-path cameras at mid-frame times.
-fn video_views(path: &CameraPath, frames: usize, test_views: usize) -> Vec<SynthView> {
+/// With a shaken path, each training frame's eye and target move by its own draw from
+/// `shake` (the held-out cameras stay on the smooth path).
+pub(super) fn video_views(
+    path: &CameraPath,
+    frames: usize,
+    test_views: usize,
+    shake: &mut Rng,
+) -> Vec<SynthView> {
     let last = frames.saturating_sub(1).max(1);
     let view = |name: String, split, kind, eye, time: f64| SynthView {
         name,
@@ -513,13 +548,19 @@ fn video_views(path: &CameraPath, frames: usize, test_views: usize) -> Vec<Synth
     let dn = digits(frames);
     for k in 0..frames {
         let s = k as f64 / last as f64;
-        views.push(view(
+        let mut v = view(
             name(k, dn),
             Split::Train,
             ViewKind::Video,
             path.eye(s, 0.0, 0.0),
             s,
-        ));
+        );
+        if path.shake_deg > 0.0 {
+            let a = path.shake_deg;
+            v.eye = path.eye(s, shake.range(-a, a), shake.range(-a, a));
+            v.target = qv([0; 3].map(|_| shake.range(-0.1 * a, 0.1 * a)));
+        }
+        views.push(v);
     }
     let n_off = test_views.div_ceil(2);
     let dt = digits(test_views);

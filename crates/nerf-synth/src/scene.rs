@@ -5,6 +5,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use super::family::Variation;
 use super::texture::Texture;
 use super::{Preset, SynthConfig};
 use nerf_data::camera::{Camera, Intrinsics, Pose};
@@ -151,10 +152,11 @@ fn plane_hit(o: Vec3, d: Vec3, t_min: f64, inside: impl Fn(f64, f64) -> bool) ->
     (t > t_min && inside(o[0] + t * d[0], o[1] + t * d[1])).then_some((t, [0.0, 0.0, 1.0]))
 }
 
-/// A rigid motion over normalised time τ, the identity at τ = 0:
+/// A motion over normalised time τ, the identity at τ = 0:
 /// rotation `R_m(τ)` = `spin_deg·τ` degrees about `spin_axis` (world frame, about the object's
-/// centre) and centre offset `displacement·τ + wobble·sin(2π·wobble_cycles·τ)`.
-/// τ outside [0, 1] extrapolates the same formulas.
+/// centre), centre offset `displacement·τ + wobble·sin(2π·wobble_cycles·τ)` and, for non-rigid
+/// motion, a squash-and-stretch `S(τ) = diag(1 + pulse·sin(2π·pulse_cycles·τ))` along the
+/// object's own axes. τ outside [0, 1] extrapolates the same formulas.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Motion {
     /// Straight-line displacement of the centre reached at τ = 1.
@@ -164,6 +166,11 @@ pub struct Motion {
     pub wobble_cycles: f64,
     pub spin_axis: Vec3,
     pub spin_deg: f64,
+    /// Relative scale amplitude along each local axis (zero: rigid).
+    #[serde(default)]
+    pub pulse: Vec3,
+    #[serde(default)]
+    pub pulse_cycles: f64,
 }
 
 impl Motion {
@@ -177,7 +184,21 @@ impl Motion {
 
     pub fn is_identity(&self) -> bool {
         let wobbles = self.wobble != [0.0; 3] && self.wobble_cycles != 0.0;
-        self.displacement == [0.0; 3] && !wobbles && self.spin_deg == 0.0
+        self.displacement == [0.0; 3] && !wobbles && self.spin_deg == 0.0 && self.is_rigid()
+    }
+
+    /// No change of shape over time.
+    pub fn is_rigid(&self) -> bool {
+        self.pulse == [0.0; 3] || self.pulse_cycles == 0.0
+    }
+
+    /// The diagonal of `S(τ)`.
+    pub fn scale_at(&self, tau: f64) -> Vec3 {
+        if self.is_rigid() {
+            return [1.0; 3];
+        }
+        let wave = (std::f64::consts::TAU * self.pulse_cycles * tau).sin();
+        self.pulse.map(|p| 1.0 + p * wave)
     }
 
     /// `(R_m(τ), centre offset(τ))`.
@@ -197,7 +218,7 @@ impl Motion {
 }
 
 /// One textured primitive with its pose at τ = 0 and its motion.
-/// Local to world at time τ: `x_w = R_m(τ)·R_0·x_l + position + offset(τ)`.
+/// Local to world at time τ: `x_w = R_m(τ)·R_0·S(τ)·x_l + position + offset(τ)`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Object {
     pub name: String,
@@ -212,25 +233,33 @@ pub struct Object {
 }
 
 impl Object {
-    /// `(R, c)` with `x_w = R·x_l + c` at time τ.
-    pub fn transform_at(&self, tau: f64) -> (Mat3, Vec3) {
+    /// `(A, A⁻¹, c)` with `x_w = A·x_l + c` at time τ (`A = R·S`, a rotation for rigid objects).
+    pub fn transform_at(&self, tau: f64) -> (Mat3, Mat3, Vec3) {
         let r0 = if self.rotation_deg == 0.0 {
             math::identity()
         } else {
             math::axis_angle(self.rotation_axis, self.rotation_deg.to_radians())
         };
         let (rm, offset) = self.motion.at(tau);
-        (math::mat_mul(&rm, &r0), math::add(self.position, offset))
+        let r = math::mat_mul(&rm, &r0);
+        let s = self.motion.scale_at(tau);
+        // R·S scales columns, (R·S)⁻¹ = S⁻¹·Rᵀ scales rows.
+        let a = r.map(|row| [0, 1, 2].map(|k| row[k] * s[k]));
+        let mut inv = math::transpose(&r);
+        for (row, sk) in inv.iter_mut().zip(s) {
+            *row = row.map(|v| v / sk);
+        }
+        (a, inv, math::add(self.position, offset))
     }
 
     pub fn to_world(&self, local: Vec3, tau: f64) -> Vec3 {
-        let (r, c) = self.transform_at(tau);
-        math::add(math::mat_vec(&r, local), c)
+        let (a, _, c) = self.transform_at(tau);
+        math::add(math::mat_vec(&a, local), c)
     }
 
     pub fn to_local(&self, world: Vec3, tau: f64) -> Vec3 {
-        let (r, c) = self.transform_at(tau);
-        math::mat_vec(&math::transpose(&r), math::sub(world, c))
+        let (_, inv, c) = self.transform_at(tau);
+        math::mat_vec(&inv, math::sub(world, c))
     }
 
     pub fn is_moving(&self) -> bool {
@@ -248,6 +277,7 @@ impl Object {
             m.displacement,
             m.wobble,
             m.spin_axis,
+            m.pulse,
         ]
         .into_iter()
         .flatten()
@@ -255,6 +285,7 @@ impl Object {
             self.rotation_deg,
             m.wobble_cycles,
             m.spin_deg,
+            m.pulse_cycles,
             t.detail,
             t.detail_scale,
         ])
@@ -265,6 +296,11 @@ impl Object {
         }
         if self.rotation_deg != 0.0 && math::norm(self.rotation_axis) == 0.0 {
             return Err(ctx("rotation_deg is set but rotation_axis is zero".into()));
+        }
+        if m.pulse.iter().any(|p| p.abs() >= 0.9) {
+            return Err(ctx(
+                "pulse amplitudes must be below 0.9 (the object would invert)".into(),
+            ));
         }
         if m.spin_deg != 0.0 && math::norm(m.spin_axis) == 0.0 {
             return Err(ctx("spin_deg is set but spin_axis is zero".into()));
@@ -349,6 +385,9 @@ pub struct Scene {
     pub light: Light,
     pub objects: Vec<Object>,
     pub views: Vec<SynthView>,
+    /// The `family` preset: what its seed drew.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub variation: Option<Variation>,
 }
 
 impl Scene {
@@ -377,6 +416,7 @@ impl Scene {
             },
             objects: Vec::new(),
             views: Vec::new(),
+            variation: None,
         }
     }
 
@@ -492,7 +532,7 @@ impl Scene {
     }
 
     /// 3-D displacement from time `t0` to `t1` of the point that sits at world `p` at `t0` and
-    /// moves rigidly with object `object`. Exactly zero for static objects and for `t0 == t1`.
+    /// moves with object `object` (the same local point). Exactly zero for static objects and for `t0 == t1`.
     pub fn object_scene_flow(&self, object: usize, p: Vec3, t0: f64, t1: f64) -> Vec3 {
         let o = &self.objects[object];
         if t0 == t1 || !o.is_moving() {

@@ -38,21 +38,14 @@ pub struct RayHit {
 /// The objects posed at one time, so per-ray work is only local transforms and intersections.
 struct Snapshot<'a> {
     objects: &'a [Object],
-    /// Per object: local → world rotation, its transpose and the centre.
+    /// Per object: local → world linear map, its inverse and the centre.
     poses: Vec<(Mat3, Mat3, Vec3)>,
     light_dir: Vec3,
 }
 
 impl<'a> Snapshot<'a> {
     fn new(scene: &'a Scene, time: f64) -> Self {
-        let poses = scene
-            .objects
-            .iter()
-            .map(|o| {
-                let (r, c) = o.transform_at(time);
-                (r, math::transpose(&r), c)
-            })
-            .collect();
+        let poses = scene.objects.iter().map(|o| o.transform_at(time)).collect();
         Snapshot {
             objects: &scene.objects,
             poses,
@@ -62,9 +55,10 @@ impl<'a> Snapshot<'a> {
 
     fn trace(&self, origin: Vec3, dir: Vec3) -> Option<RayHit> {
         let mut best: Option<(f64, usize, Vec3)> = None;
-        for (k, (obj, (_, rt, c))) in self.objects.iter().zip(&self.poses).enumerate() {
-            let o = math::mat_vec(rt, math::sub(origin, *c));
-            let d = math::mat_vec(rt, dir);
+        // An affine map keeps the ray parameter: the local hit's t is the world hit's t.
+        for (k, (obj, (_, inv, c))) in self.objects.iter().zip(&self.poses).enumerate() {
+            let o = math::mat_vec(inv, math::sub(origin, *c));
+            let d = math::mat_vec(inv, dir);
             if let Some((t, n)) = obj.shape.intersect(o, d, T_MIN)
                 && best.is_none_or(|b| t < b.0)
             {
@@ -72,15 +66,26 @@ impl<'a> Snapshot<'a> {
             }
         }
         let (t, object, n_local) = best?;
-        let (r, rt, c) = &self.poses[object];
+        let (_, inv, c) = &self.poses[object];
         let point = math::add(origin, math::scale(dir, t));
         Some(RayHit {
             t,
             object,
             point,
-            local_point: math::mat_vec(rt, math::sub(point, *c)),
-            normal: math::mat_vec(r, n_local),
+            local_point: math::mat_vec(inv, math::sub(point, *c)),
+            normal: self.normal(object, inv, n_local),
         })
+    }
+
+    /// Normals map by the inverse transpose: the rotation itself for rigid objects (kept
+    /// unnormalised so their shading stays bit-identical), renormalised when they deform.
+    fn normal(&self, object: usize, inv: &Mat3, n_local: Vec3) -> Vec3 {
+        let n = math::mat_vec(&math::transpose(inv), n_local);
+        if self.objects[object].motion.is_rigid() {
+            n
+        } else {
+            math::normalize(n)
+        }
     }
 
     /// Lambertian colour of a hit seen along `dir`. Flat shapes are lit on the side facing the

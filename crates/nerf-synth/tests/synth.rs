@@ -10,7 +10,10 @@ use nerf_data::image::Image;
 use nerf_data::math::{self, Mat3, Vec3};
 use nerf_data::npy::read_npy;
 use nerf_data::rays::pixel_rays;
-use nerf_synth::{Object, Preset, Scene, Shape, Split, SynthConfig, ViewKind, generate};
+use nerf_synth::{
+    Backdrop, MoverMotion, Object, PathKind, Preset, Scene, Shape, Speed, Split, SynthConfig, Variation,
+    ViewKind, generate,
+};
 use serde_json::Value;
 
 /// A folder under the system temp dir, removed when dropped.
@@ -38,24 +41,28 @@ fn small(preset: Preset) -> SynthConfig {
 }
 
 /// Reference pose of an object at time τ, straight from the documented formula
-/// `x_w = R_m(τ)·R_0·x_l + position + displacement·τ + wobble·sin(2π·cycles·τ)`.
-fn reference_pose(o: &Object, tau: f64) -> (Mat3, Vec3) {
+/// `x_w = R_m(τ)·R_0·S(τ)·x_l + position + displacement·τ + wobble·sin(2π·cycles·τ)`, with
+/// `S(τ) = diag(1 + pulse·sin(2π·pulse_cycles·τ))`: `(R, diag of S, c)`.
+fn reference_pose(o: &Object, tau: f64) -> (Mat3, Vec3, Vec3) {
     let r0 = math::axis_angle(o.rotation_axis, o.rotation_deg.to_radians());
     let m = &o.motion;
     let rm = math::axis_angle(m.spin_axis, (m.spin_deg * tau).to_radians());
     let wave = (2.0 * std::f64::consts::PI * m.wobble_cycles * tau).sin();
     let c = [0, 1, 2].map(|k| o.position[k] + m.displacement[k] * tau + m.wobble[k] * wave);
-    (math::mat_mul(&rm, &r0), c)
+    let pulse = (2.0 * std::f64::consts::PI * m.pulse_cycles * tau).sin();
+    let s = m.pulse.map(|a| 1.0 + a * pulse);
+    (math::mat_mul(&rm, &r0), s, c)
 }
 
 fn reference_local(o: &Object, p: Vec3, tau: f64) -> Vec3 {
-    let (r, c) = reference_pose(o, tau);
-    math::mat_vec(&math::transpose(&r), math::sub(p, c))
+    let (r, s, c) = reference_pose(o, tau);
+    let rotated = math::mat_vec(&math::transpose(&r), math::sub(p, c));
+    [0, 1, 2].map(|k| rotated[k] / s[k])
 }
 
 fn reference_world(o: &Object, local: Vec3, tau: f64) -> Vec3 {
-    let (r, c) = reference_pose(o, tau);
-    math::add(math::mat_vec(&r, local), c)
+    let (r, s, c) = reference_pose(o, tau);
+    math::add(math::mat_vec(&r, [0, 1, 2].map(|k| local[k] * s[k])), c)
 }
 
 /// How far a local point is from lying on the primitive's surface (0 = exactly on it).
@@ -275,33 +282,14 @@ fn static_flow_is_the_reprojection_of_the_depth() {
     }
 }
 
-#[test]
-fn dynamic_flow_follows_the_scene_flow_of_the_moving_cube() {
-    let scene = Scene::from_config(&small(Preset::Dynamic).with_size(64, 48).with_seed(11));
-    assert!(scene.has_motion());
+/// Checks every training pair of a video against the reference motions: scene flow carries
+/// each surface point to the same material point, is zero on static objects, and the optical
+/// flow is its projection wherever the mask says visible. Returns how many moving-object
+/// pixels had their optical flow checked.
+fn check_flow_against_scene_flow(scene: &Scene) -> usize {
     let movers = scene.moving_objects();
-    assert_eq!(movers.len(), 1, "exactly one object moves");
-    let m = movers[0];
-    let mover = &scene.objects[m];
-    assert!(
-        matches!(mover.shape, Shape::Box { .. }),
-        "the moving object is a cube"
-    );
-
-    // Its documented motion: 0.5-1 unit of travel and a quarter turn over the sequence.
-    let (r0, c0) = reference_pose(mover, 0.0);
-    let (r1, c1) = reference_pose(mover, 1.0);
-    let travel = math::norm(math::sub(c1, c0));
-    assert!((0.5..=1.0).contains(&travel), "travel {travel}");
-    let rel = math::mat_mul(&r1, &math::transpose(&r0));
-    let angle = ((rel[0][0] + rel[1][1] + rel[2][2] - 1.0) / 2.0)
-        .clamp(-1.0, 1.0)
-        .acos()
-        .to_degrees();
-    assert!((angle - 90.0).abs() < 1e-6, "rotation {angle}°");
-
     let train: Vec<_> = scene.views_in(Split::Train).collect();
-    let (w, h) = (64usize, 48usize);
+    let (w, h) = (scene.width as usize, scene.height as usize);
     let mut checked = 0;
     for k in 0..train.len() - 1 {
         let (va, vb) = (train[k], train[k + 1]);
@@ -319,21 +307,21 @@ fn dynamic_flow_follows_the_scene_flow_of_the_moving_cube() {
                 .expect("a point on an object has scene flow");
             let moved = math::add(x, sf);
             let obj = &scene.objects[id as usize];
-            if id as usize == m {
-                // The moved point is the same material point under the reference motion.
-                let (la, lb) = (
-                    reference_local(obj, x, va.time),
-                    reference_local(obj, moved, vb.time),
-                );
-                assert!(
-                    math::norm(math::sub(la, lb)) < 1e-5,
-                    "scene flow disagrees with the motion"
-                );
-                assert!(math::norm(sf) > 1e-4, "the cube moves between frames");
-            } else {
+            if !movers.contains(&(id as usize)) {
                 assert_eq!(sf, [0.0; 3], "static objects have zero scene flow");
+                continue;
             }
-            if mask[p] == 1.0 && id as usize == m {
+            // The moved point is the same material point under the reference motion.
+            let (la, lb) = (
+                reference_local(obj, x, va.time),
+                reference_local(obj, moved, vb.time),
+            );
+            assert!(
+                math::norm(math::sub(la, lb)) < 1e-5,
+                "scene flow of {} disagrees with the motion",
+                obj.name
+            );
+            if mask[p] == 1.0 {
                 let (u, v, _) = cam_b.project(moved).unwrap();
                 let want = [u - ((p % w) as f64 + 0.5), v - ((p / w) as f64 + 0.5)];
                 for c in 0..2 {
@@ -343,6 +331,35 @@ fn dynamic_flow_follows_the_scene_flow_of_the_moving_cube() {
             }
         }
     }
+    checked
+}
+
+#[test]
+fn dynamic_flow_follows_the_scene_flow_of_the_moving_cube() {
+    let scene = Scene::from_config(&small(Preset::Dynamic).with_size(64, 48).with_seed(11));
+    assert!(scene.has_motion());
+    let movers = scene.moving_objects();
+    assert_eq!(movers.len(), 1, "exactly one object moves");
+    let m = movers[0];
+    let mover = &scene.objects[m];
+    assert!(
+        matches!(mover.shape, Shape::Box { .. }),
+        "the moving object is a cube"
+    );
+
+    // Its documented motion: 0.5-1 unit of travel and a quarter turn over the sequence.
+    let (r0, _, c0) = reference_pose(mover, 0.0);
+    let (r1, _, c1) = reference_pose(mover, 1.0);
+    let travel = math::norm(math::sub(c1, c0));
+    assert!((0.5..=1.0).contains(&travel), "travel {travel}");
+    let rel = math::mat_mul(&r1, &math::transpose(&r0));
+    let angle = ((rel[0][0] + rel[1][1] + rel[2][2] - 1.0) / 2.0)
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees();
+    assert!((angle - 90.0).abs() < 1e-6, "rotation {angle}°");
+
+    let checked = check_flow_against_scene_flow(&scene);
     assert!(checked > 50, "only {checked} visible cube pixels were checked");
 
     // Scene flow of a point in empty space is undefined; over no time it is zero.
@@ -537,6 +554,7 @@ fn scenes_fit_the_blender_bounds() {
             let extra = scene.objects.iter().filter(|o| o.name != "ground").count();
             match preset {
                 Preset::Static => assert!((3..=5).contains(&extra), "{extra} objects"),
+                Preset::Family => assert!(scene.has_motion()),
                 _ => assert!((2..=3).contains(&extra), "{extra} objects besides the ground"),
             }
             for o in &scene.objects {
@@ -552,8 +570,15 @@ fn scenes_fit_the_blender_bounds() {
                     }
                 }
             }
+            // The family's forward paths close in from 4 to 3.4.
+            let radius = if preset == Preset::Family {
+                3.4..=4.0
+            } else {
+                4.0..=4.0
+            };
             for v in &scene.views {
-                assert!((math::norm(v.eye) - 4.0).abs() < 1e-6 && v.eye[2] > 0.0);
+                let r = math::norm(v.eye);
+                assert!(r > radius.start() - 1e-6 && r < radius.end() + 1e-6 && v.eye[2] > 0.0);
                 assert!((0.0..=1.0).contains(&v.time));
             }
         }
@@ -723,4 +748,122 @@ fn mono_disparity_is_affine_in_true_inverse_depth_and_loads_as_a_prior() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("r_001.npy") && err.contains("disparity"), "{err}");
+}
+
+#[test]
+fn family_members_cover_every_axis_of_variation() {
+    let members: Vec<Variation> = (0..48).map(Variation::draw).collect();
+    for (seed, v) in members.iter().enumerate().take(16) {
+        println!("seed {seed:>2}: {}", v.describe());
+    }
+    let any = |f: &dyn Fn(&Variation) -> bool| members.iter().any(f);
+    for b in [Backdrop::OpenFloor, Backdrop::Walls, Backdrop::Distant] {
+        assert!(any(&|v| v.backdrop == b), "{b:?} never drawn");
+    }
+    for p in [
+        PathKind::ShortArc,
+        PathKind::WideArc,
+        PathKind::Forward,
+        PathKind::HandHeld,
+    ] {
+        assert!(any(&|v| v.path == p), "{p:?} never drawn");
+    }
+    for m in [
+        MoverMotion::Translate,
+        MoverMotion::Spin,
+        MoverMotion::Deform,
+        MoverMotion::TranslateSpin,
+    ] {
+        for s in [Speed::Slow, Speed::Fast] {
+            assert!(any(&|v| v.movers.contains(&(m, s))), "{m:?} {s:?} never drawn");
+        }
+    }
+    for n in 1..=3 {
+        assert!(any(&|v| v.movers.len() == n), "{n} movers never drawn");
+    }
+    for f in [16, 24, 32] {
+        assert!(any(&|v| v.frames == f));
+    }
+    for w in [96, 128, 160] {
+        assert!(any(&|v| v.width == w && v.height * 4 == w * 3));
+    }
+    // The seeded config takes the member's frame count and size; the scene records it.
+    let cfg = SynthConfig::seeded(Preset::Family, 5);
+    assert_eq!(
+        (cfg.frames, cfg.width, cfg.height),
+        (members[5].frames, members[5].width, members[5].height)
+    );
+    let scene = Scene::from_config(&cfg);
+    assert_eq!(scene.variation.as_ref(), Some(&members[5]));
+    assert_eq!(scene.moving_objects().len(), members[5].movers.len());
+}
+
+/// The first family seed whose draw satisfies `want`.
+fn family_seed(want: impl Fn(&Variation) -> bool) -> u64 {
+    (0..200)
+        .find(|&s| want(&Variation::draw(s)))
+        .expect("some seed draws it")
+}
+
+#[test]
+fn family_flow_follows_the_scene_flow_of_deforming_and_several_movers() {
+    let deform = family_seed(|v| v.movers.iter().any(|m| m.0 == MoverMotion::Deform));
+    let several = family_seed(|v| v.movers.len() >= 2 && v.path == PathKind::HandHeld);
+    for seed in [deform, several] {
+        let cfg = SynthConfig::seeded(Preset::Family, seed)
+            .with_size(64, 48)
+            .with_views(5, 2);
+        let scene = Scene::from_config(&cfg);
+        let checked = check_flow_against_scene_flow(&scene);
+        assert!(checked > 20, "seed {seed}: only {checked} mover pixels checked");
+        // Movers never overlap, at any time.
+        let movers = scene.moving_objects();
+        for step in 0..=20 {
+            let tau = step as f64 / 20.0;
+            for (i, &a) in movers.iter().enumerate() {
+                for &b in &movers[i + 1..] {
+                    let (oa, ob) = (&scene.objects[a], &scene.objects[b]);
+                    let d = math::norm(math::sub(
+                        reference_world(oa, [0.0; 3], tau),
+                        reference_world(ob, [0.0; 3], tau),
+                    ));
+                    let reach = |o: &Object| {
+                        o.shape.bounding_radius()
+                            * (1.0 + o.motion.pulse.iter().fold(0.0f64, |m, p| m.max(p.abs())))
+                    };
+                    assert!(
+                        d >= reach(oa) + reach(ob),
+                        "seed {seed}: movers meet at τ = {tau}"
+                    );
+                }
+            }
+        }
+    }
+    // A deforming mover really changes shape: its local axes stretch over time.
+    let scene = Scene::from_config(&SynthConfig::seeded(Preset::Family, deform));
+    let o = scene
+        .objects
+        .iter()
+        .find(|o| !o.motion.is_rigid())
+        .expect("a deforming mover");
+    let (_, s, _) = reference_pose(o, 0.25 / o.motion.pulse_cycles);
+    assert!(s.iter().any(|&v| v > 1.2) && s.iter().any(|&v| v < 0.95), "{s:?}");
+}
+
+#[test]
+fn family_depths_stay_within_the_blender_near_and_far() {
+    for seed in 0..24 {
+        let cfg = SynthConfig::seeded(Preset::Family, seed).with_size(32, 24);
+        let scene = Scene::from_config(&cfg);
+        for v in &scene.views {
+            let out = scene.render(&scene.camera(v), v.time);
+            for &d in out.depth.iter().filter(|d| **d > 0.0) {
+                assert!(
+                    (scene.near..=scene.far).contains(&(d as f64)),
+                    "seed {seed}, view {}: depth {d} outside [near, far]",
+                    v.name
+                );
+            }
+        }
+    }
 }
