@@ -135,6 +135,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         &trainer.dataset.test,
         true,
         None,
+        None,
         &trainer.device,
     )?;
     println!(

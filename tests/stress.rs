@@ -142,6 +142,7 @@ fn training_at_ten_times_the_learning_rate_never_goes_non_finite() {
             &resumed.dataset.test,
             false,
             None,
+            None,
             &resumed.device,
         )
         .unwrap();

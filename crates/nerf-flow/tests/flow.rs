@@ -8,8 +8,9 @@ use std::time::Instant;
 
 use nerf_data::{Camera, FlowField, Image, Pose};
 use nerf_flow::{
-    FlowParams, consistency_mask, epipolar_errors, estimate_flow, fundamental_matrix, independent_motion,
-    motion_masks, read_flow_cache, video_flows, write_flow_cache,
+    FlowParams, MIN_MOVING_FRACTION, chained_flow, consistency_mask, epipolar_errors, estimate_flow,
+    fundamental_matrix, independent_motion, motion_masks, motion_stride, read_flow_cache, video_flows,
+    write_flow_cache,
 };
 use nerf_synth::{Preset, Scene, Split, SynthConfig, SynthView};
 
@@ -444,7 +445,8 @@ fn motion_of(preset: Preset) -> (f32, bool, f64, f64) {
     let n = video.frames.len();
     assert!(fwd[n - 1].is_none() && bwd[0].is_none());
     assert!(fwd[..n - 1].iter().all(Option::is_some) && bwd[1..].iter().all(Option::is_some));
-    let report = independent_motion(&video.cameras, &fwd, 1.0);
+    let stride = motion_stride(n);
+    let report = independent_motion(&video.cameras, &fwd, 1.0, stride);
     println!(
         "{preset}: moving fraction {:.5}, worst frame {:.4} ({} flows in {secs:.2} s)",
         report.moving_fraction,
@@ -457,9 +459,13 @@ fn motion_of(preset: Preset) -> (f32, bool, f64, f64) {
         2 * (n - 1)
     );
     assert_eq!(report.per_frame.len(), n);
-    assert!(report.per_frame[n - 1].is_nan() && report.per_frame[..n - 1].iter().all(|v| !v.is_nan()));
+    // Frames with no partner `stride` ahead have no score.
+    assert!(
+        report.per_frame[n - stride..].iter().all(|v| v.is_nan())
+            && report.per_frame[..n - stride].iter().all(|v| !v.is_nan())
+    );
 
-    let masks = motion_masks(&video.cameras, &fwd, &bwd, 1.0);
+    let masks = motion_masks(&video.cameras, &fwd, &bwd, 1.0, stride);
     let mover = video
         .scene
         .objects
@@ -491,19 +497,25 @@ fn motion_of(preset: Preset) -> (f32, bool, f64, f64) {
 #[test]
 fn detects_the_moving_cube_of_the_dynamic_video() {
     let (fraction, moving, cube, rest) = motion_of(Preset::Dynamic);
-    // Measured: moving fraction 0.0215 (seeds 0-5: 0.017-0.025). Motion masks cover 0.34 of
-    // the cube (it moves mostly along the epipolar lines: even exact flow puts only ~30% of it
-    // more than 1 px off them) and 0.0056 of the rest (the dilation spills over its edges).
-    assert!(moving && fraction > 0.01, "moving fraction {fraction}");
-    assert!(cube > 0.2 && rest < 0.02, "{cube} {rest}");
+    // Measured with flows chained over 3 frames: moving fraction 0.104 (0.0215 between
+    // neighbours). Motion masks cover 0.988 of the cube (0.34 between neighbours: it moves
+    // mostly along the epipolar lines, and less than a pixel per frame) and 0.047 of the rest
+    // (the swept area, occlusion edges and the dilation).
+    assert!(moving && fraction > 0.05, "moving fraction {fraction}");
+    assert!(cube > 0.9 && rest < 0.08, "{cube} {rest}");
 }
 
 #[test]
 fn finds_no_independent_motion_in_the_static_video() {
     let (fraction, moving, cube, rest) = motion_of(Preset::StaticVideo);
-    // Measured: moving fraction 0.00003 (seeds 0-5: at most 0.00006); masks 0.0001 of pixels.
-    assert!(!moving && fraction < 0.001, "moving fraction {fraction}");
-    assert!(cube + rest < 0.01, "{cube} {rest}");
+    // Measured with flows chained over 3 frames: moving fraction 0.0043 (0.00003 between
+    // neighbours; other seeds up to 0.026, which then train a dynamic field for nothing: the
+    // chained test is biased towards finding motion, BENCHMARKS.md §6).
+    assert!(
+        !moving && fraction < MIN_MOVING_FRACTION,
+        "moving fraction {fraction}"
+    );
+    assert!(cube + rest < 0.03, "{cube} {rest}");
 }
 
 fn some_fields(w: u32, h: u32, n: usize) -> (Vec<Option<FlowField>>, Vec<Option<FlowField>>) {
@@ -623,4 +635,38 @@ fn report_full_dynamic_sequence() {
     );
     let (epe, _) = mean_epe(&flow, &gt, |p| mask[p] > 0.5);
     println!("512x288 pair 0->1: mean EPE {epe:.3} px in {secs:.2} s");
+}
+
+#[test]
+fn chained_flows_match_the_direct_flow_over_several_frames() {
+    let video = Video::render(Preset::Dynamic, 2);
+    let (w, h) = video.size();
+    let n = video.frames.len();
+    let field = |(flow, mask): (Vec<f32>, Vec<f32>)| FlowField {
+        width: w,
+        height: h,
+        flow,
+        mask,
+    };
+    let fwd: Vec<Option<FlowField>> = (0..n)
+        .map(|i| (i + 1 < n).then(|| field(video.gt(i, i + 1))))
+        .collect();
+    let bwd: Vec<Option<FlowField>> = (0..n)
+        .map(|i| (i > 0).then(|| field(video.gt(i, i - 1))))
+        .collect();
+    for (i, stride, step) in [(2usize, 3usize, 1isize), (10, 3, -1), (5, 1, 1)] {
+        let chained = chained_flow(if step > 0 { &fwd } else { &bwd }, i, stride, step).unwrap();
+        let j = i.checked_add_signed(step * stride as isize).unwrap();
+        let (direct, visible) = video.gt(i, j);
+        // Where every link and the direct flow are trusted, chaining lands where the direct
+        // flow does (up to bilinear lookups across object edges).
+        let (epe, count) = mean_epe(&chained.flow, &direct, |p| {
+            chained.mask[p] > 0.5 && visible[p] > 0.5
+        });
+        println!("frames {i} -> {j}: chained vs direct EPE {epe:.4} px over {count} pixels");
+        assert!(count as u32 > w * h / 3, "{count}");
+        assert!(epe < 0.05, "{epe}");
+    }
+    // A missing link gives no chained flow.
+    assert!(chained_flow(&fwd, n - 2, 3, 1).is_none());
 }

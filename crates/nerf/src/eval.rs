@@ -5,8 +5,10 @@ use std::time::Instant;
 use burn::tensor::Device;
 use nerf_core::metrics::{psnr, ssim};
 use nerf_data::Dataset;
+use nerf_synth::Scene;
 use serde::{Deserialize, Serialize};
 
+use crate::diagnosis::{Diagnosis, GroupStats};
 use crate::error::Result;
 use crate::field::FieldModule;
 use crate::model::StaticModel;
@@ -32,6 +34,10 @@ pub struct EvalResult {
     /// Mean field evaluations per ray while rendering.
     pub samples_per_ray: f64,
     pub render_seconds: f64,
+    /// Where the error lies, per kind of held-out view, for scenes from our generator
+    /// ([`crate::diagnosis`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub groups: Option<Vec<GroupStats>>,
 }
 
 /// Up to three test views spread over the split (cheap periodic evaluation during training).
@@ -45,35 +51,40 @@ pub fn quick_views(dataset: &Dataset) -> Vec<usize> {
 
 /// Renders `views` of `dataset` with `model` and scores them against their images (mean PSNR is
 /// the mean of per-view PSNRs, as the NeRF papers report), optionally writing each view as
-/// `DIR/<index>.png`, ground truth beside the render. `step` and `train_seconds` are left for the
-/// caller.
+/// `DIR/<index>.png`, ground truth beside the render, and diagnosing the error by view kind when
+/// `scene` (from [`crate::diagnosis::load_scene`]) describes the dataset. `step` and
+/// `train_seconds` are left for the caller.
 pub fn evaluate<F: FieldModule>(
     model: &StaticModel<F>,
     dataset: &Dataset,
     views: &[usize],
     with_ssim: bool,
     save: Option<&std::path::Path>,
+    scene: Option<&Scene>,
     device: &Device,
 ) -> Result<EvalResult> {
-    score_views(dataset, views, with_ssim, save, |v| {
+    score_views(dataset, views, with_ssim, save, scene, |v| {
         let r = model.render_rays(&dataset.view_rays(v), dataset.background, device)?;
         Ok((r.rgb, r.samples_per_ray))
     })
 }
 
 /// Scores held-out views of `dataset` rendered by `render` (view index → RGB `[H·W·3]` and
-/// samples per ray), optionally saving ground truth | render pairs as `DIR/<index>.png`.
+/// samples per ray), optionally saving ground truth | render pairs as `DIR/<index>.png`. With
+/// `scene`, the generator's description of the dataset, it also fills [`EvalResult::groups`].
 /// `step` and `train_seconds` are left for the caller.
 pub fn score_views(
     dataset: &nerf_data::Dataset,
     views: &[usize],
     with_ssim: bool,
     save: Option<&std::path::Path>,
+    scene: Option<&Scene>,
     mut render: impl FnMut(usize) -> Result<(Vec<f32>, f64)>,
 ) -> Result<EvalResult> {
     let start = Instant::now();
     let mut scores = Vec::new();
     let mut spr = 0.0;
+    let mut diagnosis = scene.map(Diagnosis::new);
     for &v in views {
         let view = &dataset.views[v];
         let (rgb, samples_per_ray) = render(v)?;
@@ -88,12 +99,16 @@ pub fn score_views(
             nerf_data::Image::from_data(2 * w as u32, h as u32, 3, pair)
                 .save_png(&dir.join(format!("{v:04}.png")))?;
         }
-        scores.push(ViewScore {
+        let score = ViewScore {
             view: v,
             name: view.name.clone(),
             psnr: psnr(&rgb, &view.image.data),
             ssim: with_ssim.then(|| ssim(&rgb, &view.image.data, w, h, 3)),
-        });
+        };
+        if let Some(d) = &mut diagnosis {
+            d.add(view, &rgb, score.psnr, score.ssim);
+        }
+        scores.push(score);
     }
     let n = scores.len().max(1) as f64;
     Ok(EvalResult {
@@ -105,5 +120,6 @@ pub fn score_views(
         views: scores,
         samples_per_ray: spr / n,
         render_seconds: start.elapsed().as_secs_f64(),
+        groups: diagnosis.and_then(Diagnosis::finish),
     })
 }

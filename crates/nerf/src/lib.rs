@@ -1,10 +1,12 @@
 //! Static NeRF: fields (`field/`), sampling and the model (`renderer.rs`, `model.rs`), the
 //! optimiser step and checkpoints every model shares (`optimizer.rs`, `checkpoint.rs`), training
-//! (`trainer.rs`, `train_loop.rs`), evaluation (`eval.rs`), render paths (`render.rs`) and the CLI.
+//! (`trainer.rs`, `train_loop.rs`), evaluation (`eval.rs`; `diagnosis.rs` for generated scenes), render
+//! paths (`render.rs`) and the CLI.
 
 pub mod checkpoint;
 pub mod cli;
 pub mod config;
+pub mod diagnosis;
 pub mod error;
 pub mod eval;
 pub mod field;

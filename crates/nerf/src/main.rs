@@ -53,7 +53,7 @@ enum Command {
     Synth {
         /// Output folder.
         out: PathBuf,
-        /// static, dynamic or static_video.
+        /// static, dynamic, static_video or family (a seed draws one of a family of videos).
         #[arg(long, default_value = "static")]
         preset: nerf_synth::Preset,
         #[arg(long, default_value_t = 0)]
@@ -172,7 +172,7 @@ fn run(cli: Cli) -> Result<()> {
             test_views,
             mono_disparity,
         } => {
-            let mut cfg = nerf_synth::SynthConfig::new(preset).with_seed(seed);
+            let mut cfg = nerf_synth::SynthConfig::seeded(preset, seed);
             cfg.mono_disparity = mono_disparity;
             if let Some(s) = size {
                 cfg = cfg.with_size(s[0], s[1]);
@@ -191,6 +191,9 @@ fn run(cli: Cli) -> Result<()> {
                 summary.test_views,
                 summary.files_written
             );
+            if let Some(v) = nerf_synth::Scene::from_config(&cfg).variation {
+                println!("family member: {}", v.describe());
+            }
             Ok(())
         }
     }
@@ -318,7 +321,16 @@ fn write_eval(t: &Run, split: &str, save_images: bool) -> Result<nerf::eval::Eva
         std::fs::create_dir_all(&dir).map_err(|e| DataError::io(&dir, e))?;
     }
     let save = save_images.then_some(dir.as_path());
-    let mut result = nerf::eval::evaluate(&t.model, &t.dataset, &views, true, save, &t.device)?;
+    let scene = nerf::diagnosis::load_scene(&t.cfg.data)?;
+    let mut result = nerf::eval::evaluate(
+        &t.model,
+        &t.dataset,
+        &views,
+        true,
+        save,
+        scene.as_ref(),
+        &t.device,
+    )?;
     result.split = split.into();
     result.step = t.step;
     result.train_seconds = t.elapsed;
@@ -341,6 +353,9 @@ fn write_eval(t: &Run, split: &str, save_images: bool) -> Result<nerf::eval::Eva
         result.render_seconds,
         result.mean_ssim.unwrap_or(f64::NAN)
     );
+    if let Some(groups) = &result.groups {
+        print!("{}", nerf::diagnosis::table(groups));
+    }
     Ok(result)
 }
 

@@ -300,7 +300,16 @@ impl<F: FieldModule> crate::train_loop::Trainable for Trainer<F> {
     }
     fn quick_eval(&mut self) -> Result<f64> {
         let views = crate::eval::quick_views(&self.dataset);
-        Ok(crate::eval::evaluate(&self.model, &self.dataset, &views, false, None, &self.device)?.mean_psnr)
+        Ok(crate::eval::evaluate(
+            &self.model,
+            &self.dataset,
+            &views,
+            false,
+            None,
+            None,
+            &self.device,
+        )?
+        .mean_psnr)
     }
     fn status(&self) -> String {
         self.model.occupancy.as_ref().map_or(String::new(), |o| {

@@ -71,17 +71,21 @@ pub fn render_at(
 
 /// Scores held-out views (each with its own camera and time), optionally saving ground truth |
 /// render pairs into `save`, and returns each view's rendered depth (`[H*W]`, Σw·t over the
-/// opacity, camera depth for Euclidean scenes). `step` and `train_seconds` are left for the caller.
+/// opacity, camera depth for Euclidean scenes). With `scene`, the generator's description of
+/// the dataset, it also splits the error by view kind on and off the moving objects
+/// ([`nerf::diagnosis`], in [`EvalResult::groups`]). `step` and `train_seconds` are left for
+/// the caller.
 pub fn evaluate_with_depth(
     model: &NsffModel,
     dataset: &Dataset,
     views: &[usize],
     with_ssim: bool,
     save: Option<&Path>,
+    scene: Option<&nerf_synth::Scene>,
     device: &Device,
 ) -> Result<(EvalResult, Vec<Vec<f32>>)> {
     let mut depths = Vec::with_capacity(views.len());
-    let result = score_views(dataset, views, with_ssim, save, |v| {
+    let result = score_views(dataset, views, with_ssim, save, scene, |v| {
         let view = &dataset.views[v];
         let r = render_at(model, dataset, &view.camera, view.time.unwrap_or(0.0), device)?;
         depths.push(

@@ -224,7 +224,16 @@ fn write_eval(t: &Run, save_images: bool) -> Result<nerf::eval::EvalResult> {
         std::fs::create_dir_all(&dir).map_err(|e| DataError::io(&dir, e))?;
     }
     let save = save_images.then_some(dir.as_path());
-    let (mut result, depths) = evaluate_with_depth(&t.model, &t.dataset, &views, true, save, &t.device)?;
+    let scene = nerf::diagnosis::load_scene(&t.cfg.base.data)?;
+    let (mut result, depths) = evaluate_with_depth(
+        &t.model,
+        &t.dataset,
+        &views,
+        true,
+        save,
+        scene.as_ref(),
+        &t.device,
+    )?;
     result.step = t.step;
     result.train_seconds = t.elapsed;
     let path = t.run_dir.join("eval.json");
@@ -247,27 +256,26 @@ fn write_eval(t: &Run, save_images: bool) -> Result<nerf::eval::EvalResult> {
         result.render_seconds,
         result.mean_ssim.unwrap_or(f64::NAN)
     );
+    if let Some(groups) = &result.groups {
+        print!("{}", nerf::diagnosis::table(groups));
+    }
     // Scenes from our generator carry their exact motion: score the scene flow too.
-    let scene_file = t.cfg.base.data.join(nerf_synth::SCENE_FILE);
-    if scene_file.exists() {
-        let scene = nerf_synth::Scene::load(&scene_file)?;
-        if let Some(e) = nsff::eval::scene_flow_error(&t.model, &t.dataset, &t.frames, &scene, 4, &t.device)?
-        {
-            println!(
-                "scene flow on moving objects: EPE {:.4} (no-motion baseline {:.4}; predicted length {:.4}, cosine {:.2}) over {} surface points; in the next frame {:.2} px (no motion {:.2} px)",
-                e.epe,
-                e.zero_motion_epe,
-                e.predicted_length,
-                e.cosine,
-                e.points,
-                e.pixel_epe,
-                e.pixel_zero_motion_epe
-            );
-            let path = t.run_dir.join("scene_flow.json");
-            let json =
-                serde_json::to_vec_pretty(&e).map_err(|err| DataError::invalid(&path, err.to_string()))?;
-            nerf_data::image::write_atomic(&path, &json)?;
-        }
+    if let Some(scene) = &scene
+        && let Some(e) = nsff::eval::scene_flow_error(&t.model, &t.dataset, &t.frames, scene, 4, &t.device)?
+    {
+        println!(
+            "scene flow on moving objects: EPE {:.4} (no-motion baseline {:.4}; predicted length {:.4}, cosine {:.2}) over {} surface points; in the next frame {:.2} px (no motion {:.2} px)",
+            e.epe,
+            e.zero_motion_epe,
+            e.predicted_length,
+            e.cosine,
+            e.points,
+            e.pixel_epe,
+            e.pixel_zero_motion_epe
+        );
+        let path = t.run_dir.join("scene_flow.json");
+        let json = serde_json::to_vec_pretty(&e).map_err(|err| DataError::invalid(&path, err.to_string()))?;
+        nerf_data::image::write_atomic(&path, &json)?;
     }
     if let Some(e) = nsff::eval::depth_error(&t.cfg.base.data, &t.dataset, &views, &depths)? {
         println!(

@@ -654,7 +654,7 @@ impl nerf::train_loop::Trainable for NsffTrainer {
         let views = crate::eval::quick_views(&self.video.dataset);
         let ds = &self.video.dataset;
         let (result, _) =
-            crate::eval::evaluate_with_depth(&self.model, ds, &views, false, None, &self.device)?;
+            crate::eval::evaluate_with_depth(&self.model, ds, &views, false, None, None, &self.device)?;
         Ok(result.mean_psnr)
     }
     fn status(&self) -> String {

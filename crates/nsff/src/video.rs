@@ -144,9 +144,10 @@ pub fn prepare(dataset: Dataset, cache_dir: &Path, thresholds_px: (f32, f32), qu
         }
     }
     let cameras: Vec<nerf_data::Camera> = frames.iter().map(|&f| dataset.views[f].camera).collect();
-    let report = nerf_flow::independent_motion(&cameras, &flow_fwd, motion_threshold_px);
+    let stride = nerf_flow::motion_stride(n);
+    let report = nerf_flow::independent_motion(&cameras, &flow_fwd, motion_threshold_px, stride);
     let motion_masks: Vec<Vec<bool>> =
-        nerf_flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, mask_threshold_px)
+        nerf_flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, mask_threshold_px, stride)
             .into_iter()
             .map(|m| m.into_iter().map(|v| v > 0.5).collect())
             .collect();
