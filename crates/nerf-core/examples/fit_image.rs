@@ -52,6 +52,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         base_resolution: 8,
         finest_resolution: 512,
         time_resolution: None,
+        time_follows_space: false,
     };
     let grid = HashGrid::new(cfg.clone(), 0);
     let mut mlp = MlpConfig::new(cfg.output_dim(), 64, 2, 3).init(&device);

@@ -35,6 +35,7 @@ fn run(device: &Device) -> Vec<Vec<f32>> {
             base_resolution: 4,
             finest_resolution: 32,
             time_resolution: None,
+            time_follows_space: false,
         },
         7,
     );

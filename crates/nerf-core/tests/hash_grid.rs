@@ -16,6 +16,7 @@ fn small() -> HashGridConfig {
         base_resolution: 4,
         finest_resolution: 64,
         time_resolution: None,
+        time_follows_space: false,
     }
 }
 
@@ -294,17 +295,60 @@ fn encode_f64_nd(cfg: &HashGridConfig, table: &[f32], x: &[f64]) -> Vec<f64> {
     out
 }
 
-#[test]
-fn space_time_grid_caps_time_resolution_and_differentiates() {
-    let cfg = HashGridConfig {
+/// A small space-time grid: spatial resolutions 4 to 64 over five levels.
+fn space_time(time_resolution: u32, time_follows_space: bool) -> HashGridConfig {
+    HashGridConfig {
         dims: 4,
         levels: 5,
         features: 2,
         log2_table: 12,
         base_resolution: 4,
         finest_resolution: 64,
-        time_resolution: Some(7),
-    };
+        time_resolution: Some(time_resolution),
+        time_follows_space,
+    }
+}
+
+#[test]
+fn time_resolution_can_follow_the_spatial_resolution() {
+    let cfg = space_time(16, true);
+    // Spatial resolutions ⌊4·2^l⌋ (4, 7, 15, 31, 63: growth 2 in floating point, floored);
+    // time round(16·r/64) = 1, 2, 4, 8, 16.
+    let lv = levels(&cfg);
+    let time: Vec<u32> = lv.iter().map(|l| l.resolutions[3]).collect();
+    let space: Vec<u32> = lv.iter().map(|l| l.resolutions[0]).collect();
+    assert!(
+        space
+            .iter()
+            .zip([4, 8, 16, 32, 64])
+            .all(|(&r, want)| r == want || r + 1 == want),
+        "{space:?}"
+    );
+    assert_eq!(time, [1, 2, 4, 8, 16]);
+    // Same encoding as the f64 definition at those resolutions.
+    let n_params = HashGrid::new(cfg.clone(), 0).num_params();
+    let table: Vec<f32> = (0..n_params)
+        .map(|i| ((i * 104_729) % 997) as f32 / 500.0 - 1.0)
+        .collect();
+    let grid = HashGrid::with_table(cfg.clone(), table.clone());
+    let mut rng = StdRng::seed_from_u64(3);
+    let pts: Vec<f32> = (0..4 * 30).map(|_| rng.random_range(0.0..1.0)).collect();
+    let fused = grid.encode_host(&pts);
+    let width = cfg.output_dim();
+    for p in 0..30 {
+        let x: Vec<f64> = pts[4 * p..4 * p + 4].iter().map(|v| *v as f64).collect();
+        for (j, want) in encode_f64_nd(&cfg, &table, &x).into_iter().enumerate() {
+            assert!(
+                (fused[p * width + j] as f64 - want).abs() < 1e-4,
+                "point {p} feature {j}"
+            );
+        }
+    }
+}
+
+#[test]
+fn space_time_grid_caps_time_resolution_and_differentiates() {
+    let cfg = space_time(7, false);
     let lv = levels(&cfg);
     assert!(
         lv.iter()

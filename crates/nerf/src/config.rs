@@ -145,6 +145,7 @@ impl TrainConfig {
                     base_resolution: 16,
                     finest_resolution: 1024,
                     time_resolution: None,
+                    time_follows_space: false,
                 },
                 hidden: 64,
                 geo_features: 16,

@@ -34,6 +34,15 @@ pub struct LossWeights {
     /// surface on the step's own rays (what the frame's camera cannot see at its time).
     #[serde(default = "default_hidden")]
     pub hidden: f64,
+    /// Dynamic share of the combined render on rays outside the frame's motion mask: static
+    /// content belongs to the static field (else the dynamic field, which must render whole
+    /// frames alone, takes it over and shows as fog off the camera path).
+    #[serde(default = "default_still_dynamic")]
+    pub still_dynamic: f64,
+}
+
+fn default_still_dynamic() -> f64 {
+    0.0
 }
 
 fn default_hidden() -> f64 {
@@ -57,6 +66,7 @@ impl Default for LossWeights {
             entropy: 1e-3,
             sparsity: default_sparsity(),
             hidden: default_hidden(),
+            still_dynamic: default_still_dynamic(),
         }
     }
 }
@@ -143,6 +153,9 @@ pub struct NsffConfig {
     /// learns as fast as in `nerf` while the costly dynamic terms see one frame per step.
     #[serde(default = "default_static_batch")]
     pub static_batch: bool,
+    /// Rays of the static batch per uniformly drawn space-time ray.
+    #[serde(default = "default_static_batch_scale")]
+    pub static_batch_scale: f32,
     /// Random points per step for the dynamic sparsity term (`weights.sparsity`).
     #[serde(default = "default_sparsity_points")]
     pub sparsity_points: usize,
@@ -162,6 +175,10 @@ fn default_hard_fraction() -> f32 {
 
 fn default_static_batch() -> bool {
     true
+}
+
+fn default_static_batch_scale() -> f32 {
+    1.0
 }
 
 fn default_min_rays() -> usize {
@@ -204,6 +221,7 @@ impl NsffConfig {
                 base_resolution: 16,
                 finest_resolution: 256,
                 time_resolution: None,
+                time_follows_space: false,
             },
             dynamic_width: default_dynamic_width(),
             dynamic_sh_degree: default_dynamic_sh_degree(),
@@ -219,6 +237,7 @@ impl NsffConfig {
             time_interp: TimeInterp::Direct,
             hard_fraction: default_hard_fraction(),
             static_batch: default_static_batch(),
+            static_batch_scale: default_static_batch_scale(),
             sparsity_points: default_sparsity_points(),
         }
     }

@@ -29,6 +29,15 @@ pub fn wmae(a: Tensor<2>, b: Tensor<2>, mask: Tensor<2>) -> Tensor<1> {
     err.sum() / (mask.sum() * c + 1e-8)
 }
 
+/// Mean dynamic share Σ_i w_dy,i over the rays that see no motion: `share` `[R, 1]` from the
+/// combined render, `still` R host values (1 = outside the frame's motion mask). 0 when no ray
+/// is still.
+pub fn still_dynamic_share(share: Tensor<2>, still: Vec<f32>) -> Tensor<1> {
+    let n = still.iter().sum::<f32>().max(1.0);
+    let mask = tensor(still, 1, &share.device());
+    (share * mask).sum() / n
+}
+
 /// One-sided entropy −b·log(b + 1e-8), averaged: pushes blend weights towards 0 or 1.
 pub fn entropy(b: Tensor<2>) -> Tensor<1> {
     (b.clone() * (b + 1e-8).log()).neg().mean()
@@ -224,6 +233,18 @@ mod tests {
 
     fn t2(v: &[f32], c: usize, dev: &Device) -> Tensor<2> {
         nerf::renderer::tensor(v.to_vec(), c, dev)
+    }
+
+    #[test]
+    fn still_dynamic_share_averages_over_still_rays_only() {
+        let dev = Device::flex();
+        let share = t2(&[0.5, 0.9, 0.1, 0.0], 1, &dev);
+        let scalar = |t: Tensor<1>| t.into_scalar::<f32>() as f64;
+        // Rays 0 and 2 are still: (0.5 + 0.1) / 2.
+        let got = scalar(still_dynamic_share(share.clone(), vec![1.0, 0.0, 1.0, 0.0]));
+        assert!((got - 0.3).abs() < 1e-6, "{got}");
+        // No still ray: nothing to penalise.
+        assert_eq!(scalar(still_dynamic_share(share, vec![0.0; 4])), 0.0);
     }
 
     /// Each loss against its definition recomputed in f64 on the host.

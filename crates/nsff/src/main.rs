@@ -39,6 +39,10 @@ enum Command {
         /// Renders between frames: splat or direct (default: the run's own setting).
         #[arg(long, value_enum)]
         time_interp: Option<TimeInterp>,
+        /// Render with the static field alone (the dynamic field skipped everywhere) and write
+        /// eval_static.json: tells whether an error comes from the static or the dynamic field.
+        #[arg(long)]
+        static_only: bool,
     },
     /// Render a run: the cameras of a D-NeRF transforms file, or a path (bullet time, time-lapse, space-time).
     Render(RenderArgs),
@@ -105,9 +109,14 @@ fn run(cli: Cli) -> Result<()> {
             run_dir,
             save_images,
             time_interp,
+            static_only,
         } => {
-            let t = open_run(&run_dir, time_interp)?;
-            let r = write_eval(&t, save_images)?;
+            let mut t = open_run(&run_dir, time_interp)?;
+            if static_only {
+                t.model.settings.blend_skip = f32::INFINITY;
+            }
+            let name = if static_only { "eval_static" } else { "eval" };
+            let r = write_eval(&t, save_images, name)?;
             println!("mean_psnr {:.4}", r.mean_psnr);
             Ok(())
         }
@@ -165,7 +174,7 @@ fn train(args: TrainArgs) -> Result<()> {
             run_dir: t.run_dir,
             device: t.device,
         };
-        let r = write_eval(&t, false)?;
+        let r = write_eval(&t, false, "eval")?;
         println!("mean_psnr {:.4}", r.mean_psnr);
         render_path(&t, PathKind::Spacetime, 0, 48, &run_dir.join("render"))?;
         eprintln!(
@@ -211,7 +220,8 @@ fn open_run(run_dir: &Path, time_interp: Option<TimeInterp>) -> Result<Run> {
     })
 }
 
-fn write_eval(t: &Run, save_images: bool) -> Result<nerf::eval::EvalResult> {
+/// Scores the held-out views into RUN_DIR/`name`.json (and images into RUN_DIR/`name`/).
+fn write_eval(t: &Run, save_images: bool, name: &str) -> Result<nerf::eval::EvalResult> {
     let views = t.dataset.test.clone();
     if views.is_empty() {
         return Err(ModelError::usage(
@@ -219,7 +229,7 @@ fn write_eval(t: &Run, save_images: bool) -> Result<nerf::eval::EvalResult> {
             "the video has no held-out views",
         ));
     }
-    let dir = t.run_dir.join("eval");
+    let dir = t.run_dir.join(name);
     if save_images {
         std::fs::create_dir_all(&dir).map_err(|e| DataError::io(&dir, e))?;
     }
@@ -236,7 +246,7 @@ fn write_eval(t: &Run, save_images: bool) -> Result<nerf::eval::EvalResult> {
     )?;
     result.step = t.step;
     result.train_seconds = t.elapsed;
-    let path = t.run_dir.join("eval.json");
+    let path = t.run_dir.join(format!("{name}.json"));
     let json = serde_json::to_vec_pretty(&result).map_err(|e| DataError::invalid(&path, e.to_string()))?;
     nerf_data::image::write_atomic(&path, &json)?;
     for v in &result.views {

@@ -117,7 +117,12 @@ pub fn render_combined(
         samples,
         &[
             Component::new(q.st.sigma.clone(), q.st.rgb.clone()).blended(blend.clone().neg() + 1.0),
-            Component::new(q.dy.sigma.clone(), q.dy.rgb.clone()).blended(blend),
+            Component::new(q.dy.sigma.clone(), q.dy.rgb.clone())
+                .blended(blend)
+                .with(
+                    DYNAMIC_SHARE,
+                    Tensor::ones([q.dy.sigma.dims()[0], 1], &q.dy.sigma.device()),
+                ),
         ],
         &Background::from_option(background),
         render_options(model),
@@ -221,7 +226,8 @@ pub fn render_direct(
 
 /// Render channels beside colour, depth and opacity: the share of each pixel rendered by the
 /// dynamic component, and its expected scene-flow magnitude.
-const DYNAMIC_SHARE: &str = "dynamic_share";
+/// Extra channel: the dynamic component's share of a pixel (Σ of its blended weights).
+pub const DYNAMIC_SHARE: &str = "dynamic_share";
 const FLOW_MAGNITUDE: &str = "flow_magnitude";
 
 /// Renders a whole camera at a continuous frame position `tau` (frame index units). Between

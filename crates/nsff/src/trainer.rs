@@ -24,7 +24,7 @@ use crate::field::{BLEND, DynamicField, FLOW_NEXT, FLOW_PREV, GATE, PROB_NEXT, P
 use crate::geometry;
 use crate::losses;
 use crate::model::{NsffModel, query_dynamic};
-use crate::render::{query_space_time, render_combined, render_options, sample_rays};
+use crate::render::{DYNAMIC_SHARE, query_space_time, render_combined, render_options, sample_rays};
 use crate::video::{Video, prepare};
 
 pub use crate::checkpoint::NsffState;
@@ -303,6 +303,15 @@ impl NsffTrainer {
             target.clone().slice([0..n_u, 0..3]),
         );
         let mut loss = mse_cb.clone();
+        if wts.still_dynamic > 0.0 {
+            let mask = &v.motion_masks[k];
+            let still = batch.pixels[..n_u]
+                .iter()
+                .map(|&p| if mask[p as usize] { 0.0 } else { 1.0 })
+                .collect();
+            let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
+            loss = loss + losses::still_dynamic_share(share, still) * wts.still_dynamic;
+        }
         if wts.hidden > 0.0 {
             let hidden = losses::hidden_dynamic_depth(
                 &st.sigma,
@@ -394,7 +403,8 @@ impl NsffTrainer {
             loss = loss + sparse * wts.sparsity;
         }
         if self.cfg.static_batch {
-            let (rays_s, target_s) = self.still_pixels(batch.n_uniform, rng);
+            let n = (batch.n_uniform as f32 * self.cfg.static_batch_scale).round() as usize;
+            let (rays_s, target_s) = self.still_pixels(n.max(1), rng);
             let still = span("nsff_static_batch", || {
                 self.static_photometric(&rays_s, tensor(target_s, 3, dev), rng)
             })?;

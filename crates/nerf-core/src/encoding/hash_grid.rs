@@ -40,6 +40,11 @@ pub struct HashGridConfig {
     /// fine levels alike stop subdividing time between video frames (e.g. frames − 1).
     #[serde(default)]
     pub time_resolution: Option<u32>,
+    /// With `time_resolution`: each level's time resolution follows its spatial resolution
+    /// (`time_resolution · resolution / finest_resolution`, at least 1), so coarse levels share
+    /// their features across many frames and only the finest levels resolve single frames.
+    #[serde(default)]
+    pub time_follows_space: bool,
 }
 
 impl Default for HashGridConfig {
@@ -52,6 +57,7 @@ impl Default for HashGridConfig {
             base_resolution: 16,
             finest_resolution: 2048,
             time_resolution: None,
+            time_follows_space: false,
         }
     }
 }
@@ -95,7 +101,13 @@ pub fn levels(cfg: &HashGridConfig) -> Vec<Level> {
             let resolution = (cfg.base_resolution as f64 * b.powi(l as i32)).floor() as u32;
             let mut resolutions = [resolution; 4];
             if let (Some(cap), true) = (cfg.time_resolution, cfg.dims >= 2) {
-                resolutions[cfg.dims - 1] = resolution.min(cap.max(1));
+                let cap = cap.max(1);
+                resolutions[cfg.dims - 1] = if cfg.time_follows_space {
+                    let scaled = cap as f64 * resolution as f64 / cfg.finest_resolution.max(1) as f64;
+                    (scaled.round() as u32).clamp(1, cap)
+                } else {
+                    resolution.min(cap)
+                };
             }
             let dense_size = resolutions[..cfg.dims]
                 .iter()
