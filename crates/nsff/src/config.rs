@@ -153,6 +153,10 @@ pub struct NsffConfig {
     /// learns as fast as in `nerf` while the costly dynamic terms see one frame per step.
     #[serde(default = "default_static_batch")]
     pub static_batch: bool,
+    /// Score the dynamic-only render on the frame's motion mask only, instead of whole frames
+    /// (NSFF), so the dynamic field need not learn the static scene.
+    #[serde(default)]
+    pub dynamic_photo_masked: bool,
     /// Rays of the static batch per uniformly drawn space-time ray.
     #[serde(default = "default_static_batch_scale")]
     pub static_batch_scale: f32,
@@ -238,6 +242,7 @@ impl NsffConfig {
             hard_fraction: default_hard_fraction(),
             static_batch: default_static_batch(),
             static_batch_scale: default_static_batch_scale(),
+            dynamic_photo_masked: false,
             sparsity_points: default_sparsity_points(),
         }
     }

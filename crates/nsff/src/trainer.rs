@@ -337,7 +337,18 @@ impl NsffTrainer {
                 .with(X_PREV, x_prev.clone())
                 .with(DISPARITY, disparity)],
         );
-        loss = loss + losses::mse(dyn_only.rgb.clone(), target.clone()) * wts.dynamic_photo;
+        let dyn_photo = if self.cfg.dynamic_photo_masked {
+            let mask = &v.motion_masks[k];
+            let moving = batch
+                .pixels
+                .iter()
+                .map(|&p| f32::from(u8::from(mask[p as usize])))
+                .collect();
+            losses::wmse(dyn_only.rgb.clone(), target.clone(), tensor(moving, 1, dev))
+        } else {
+            losses::mse(dyn_only.rgb.clone(), target.clone())
+        };
+        loss = loss + dyn_photo * wts.dynamic_photo;
         if let (Some(disp), true) = (&v.disparity[k], wts.depth > 0.0) {
             // Monocular disparity, up to an unknown scale and shift per frame.
             let prior: Vec<f32> = batch.pixels.iter().map(|&p| disp[p as usize]).collect();
