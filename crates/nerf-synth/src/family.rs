@@ -65,7 +65,7 @@ pub enum PathKind {
 }
 
 /// One member of the family: what a seed drew.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Variation {
     pub backdrop: Backdrop,
     /// One entry per moving object.

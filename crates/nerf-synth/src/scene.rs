@@ -350,6 +350,18 @@ pub enum ViewKind {
     MidFrame,
 }
 
+impl ViewKind {
+    /// The name `scene.json` uses.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ViewKind::Orbit => "orbit",
+            ViewKind::Video => "video",
+            ViewKind::OffPath => "off_path",
+            ViewKind::MidFrame => "mid_frame",
+        }
+    }
+}
+
 /// A camera to render: position, target (world up is +z) and time.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SynthView {

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::family::Variation;
 use super::scene::{SCENE_FILE, Scene, Split, SynthView};
 use super::{Preset, SynthConfig};
 use nerf_data::camera::AxisConvention;
@@ -22,6 +23,8 @@ pub struct GenerateSummary {
     pub val_views: usize,
     /// Every file written: images, ground-truth arrays, JSON files.
     pub files_written: usize,
+    /// The `family` preset: what its seed drew.
+    pub variation: Option<Variation>,
 }
 
 /// Builds the scene `cfg` describes and writes it to `out_dir` (created if needed). Existing
@@ -152,6 +155,7 @@ impl Scene {
             test_views: test.len(),
             val_views: test.len(),
             files_written: files,
+            variation: self.variation.clone(),
         })
     }
 

@@ -590,6 +590,18 @@ fn presets_and_configs() {
     for p in Preset::ALL {
         assert_eq!(p.to_string().parse::<Preset>().unwrap(), p);
     }
+    for k in [
+        ViewKind::Orbit,
+        ViewKind::Video,
+        ViewKind::OffPath,
+        ViewKind::MidFrame,
+    ] {
+        assert_eq!(
+            serde_json::to_value(k).unwrap(),
+            k.as_str(),
+            "as_str is scene.json's name"
+        );
+    }
     assert_eq!("static-video".parse::<Preset>().unwrap(), Preset::StaticVideo);
     assert!("bouncing".parse::<Preset>().unwrap_err().contains("bouncing"));
     let d = SynthConfig::new(Preset::Dynamic);

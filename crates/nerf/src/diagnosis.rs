@@ -188,14 +188,6 @@ pub fn moving_mask(scene: &Scene, camera: &Camera, time: f64) -> Vec<bool> {
         .collect()
 }
 
-/// The group of a scene view: its kind as `scene.json` names it (`off_path`, `mid_frame`, ...).
-pub fn group_name(view: &SynthView) -> String {
-    serde_json::to_value(view.kind)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_string))
-        .unwrap_or_else(|| format!("{:?}", view.kind))
-}
-
 /// The diagnosis of one evaluation: [`Diagnosis::add`] every scored view, then
 /// [`Diagnosis::finish`].
 pub struct Diagnosis<'a> {
@@ -219,7 +211,7 @@ impl<'a> Diagnosis<'a> {
         };
         let mask = moving_mask(self.scene, &view.camera, sv.time);
         self.groups
-            .add(&group_name(sv), rgb, &view.image.data, &mask, psnr, ssim);
+            .add(sv.kind.as_str(), rgb, &view.image.data, &mask, psnr, ssim);
     }
 
     /// The groups, or `None` when no view was described by the scene.

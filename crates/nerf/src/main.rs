@@ -191,7 +191,7 @@ fn run(cli: Cli) -> Result<()> {
                 summary.test_views,
                 summary.files_written
             );
-            if let Some(v) = nerf_synth::Scene::from_config(&cfg).variation {
+            if let Some(v) = &summary.variation {
                 println!("family member: {}", v.describe());
             }
             Ok(())

@@ -102,27 +102,29 @@ pub fn render_options(model: &NsffModel) -> RenderOptions {
 }
 
 /// The combined render of training (differentiable on an autodiff device): the static and
-/// dynamic components blended per sample by b = b_s·g.
+/// dynamic components blended per sample by b = b_s·g; with `dynamic_share`, also the
+/// [`DYNAMIC_SHARE`] channel (an extra channel on the hot path, so only when a loss reads it).
 pub fn render_combined(
     model: &NsffModel,
     rays: &Rays,
     samples: &RaySamples,
     q: &SpaceTimeQuery,
     background: Option<[f32; 3]>,
+    dynamic_share: bool,
     device: &Device,
 ) -> RenderOutput {
     let blend = q.st.extras.expect(BLEND) * q.dy.extras.expect(GATE);
+    let mut dynamic = Component::new(q.dy.sigma.clone(), q.dy.rgb.clone()).blended(blend.clone());
+    if dynamic_share {
+        let ones = Tensor::ones([q.dy.sigma.dims()[0], 1], &q.dy.sigma.device());
+        dynamic = dynamic.with(DYNAMIC_SHARE, ones);
+    }
     render(
         rays,
         samples,
         &[
-            Component::new(q.st.sigma.clone(), q.st.rgb.clone()).blended(blend.clone().neg() + 1.0),
-            Component::new(q.dy.sigma.clone(), q.dy.rgb.clone())
-                .blended(blend)
-                .with(
-                    DYNAMIC_SHARE,
-                    Tensor::ones([q.dy.sigma.dims()[0], 1], &q.dy.sigma.device()),
-                ),
+            Component::new(q.st.sigma.clone(), q.st.rgb.clone()).blended(blend.neg() + 1.0),
+            dynamic,
         ],
         &Background::from_option(background),
         render_options(model),
@@ -413,14 +415,19 @@ mod tests {
         for time in [0.5f32, 0.3] {
             let samples = sample_rays(&rays, &bounds, cfg.samples, true, None, None);
             let q = query_space_time(&model, dynamic, &rays, &samples, time, &dev);
-            let train = render_combined(&model, &rays, &samples, &q, bg, &dev);
+            let train = render_combined(&model, &rays, &samples, &q, bg, true, &dev);
             let infer = render_direct(&model, &rays, time, bg, &dev).unwrap();
             let opacity = host(train.opacity.clone());
             assert!(opacity.iter().sum::<f32>() / opacity.len() as f32 > 0.05);
             for (name, a, b) in [
-                ("rgb", host(train.rgb), infer.rgb),
-                ("depth", host(train.depth), infer.depth),
+                ("rgb", host(train.rgb.clone()), infer.rgb),
+                ("depth", host(train.depth.clone()), infer.depth),
                 ("opacity", opacity, infer.opacity),
+                (
+                    "dynamic share",
+                    host(train.expect(DYNAMIC_SHARE)),
+                    infer.dynamic_share,
+                ),
             ] {
                 assert_close(&format!("t = {time}, {name}"), &a, &b, 1e-5);
             }

@@ -296,14 +296,15 @@ impl NsffTrainer {
 
         // Combined render, scored over the uniformly drawn rays only, as NSFF (the mined ones
         // would bias the blend).
-        let combined = render_combined(&self.model, rays, &samples, &q, ds.background, dev);
+        let share = wts.still_dynamic > 0.0;
+        let combined = render_combined(&self.model, rays, &samples, &q, ds.background, share, dev);
         let n_u = batch.n_uniform;
         let mse_cb = losses::mse(
             combined.rgb.clone().slice([0..n_u, 0..3]),
             target.clone().slice([0..n_u, 0..3]),
         );
         let mut loss = mse_cb.clone();
-        if wts.still_dynamic > 0.0 {
+        if share {
             let mask = &v.motion_masks[k];
             let still = batch.pixels[..n_u]
                 .iter()
