@@ -23,6 +23,9 @@ pub struct NsffState {
     /// Rays per step (adapted to keep the sample count near the static pipeline's target).
     #[serde(default)]
     pub n_rays: usize,
+    /// Rays of the static batch per step (adapted the same way); 0 in older checkpoints.
+    #[serde(default)]
+    pub n_static_rays: usize,
 }
 
 /// Writes an NSFF model's sections ("bounds", "times" and the "model" parts).

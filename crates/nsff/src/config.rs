@@ -157,9 +157,22 @@ pub struct NsffConfig {
     /// (NSFF), so the dynamic field need not learn the static scene.
     #[serde(default)]
     pub dynamic_photo_masked: bool,
-    /// Rays of the static batch per uniformly drawn space-time ray.
+    /// Samples of the static batch per step, as a share of the static pipeline's
+    /// `target_samples` (its ray count adapts to keep it, as `nerf train`'s does): at 1 the static
+    /// batch is a `nerf train` step.
     #[serde(default = "default_static_batch_scale")]
     pub static_batch_scale: f32,
+    /// Samples of the space-time batch (one frame, four field queries per sample) per step, as a
+    /// share of the static pipeline's `target_samples`; its ray count adapts to keep it.
+    #[serde(default = "default_space_time_share")]
+    pub space_time_share: f32,
+    /// Share of the budget (time or steps, as `progress`) during which steps train the static
+    /// field alone on pixels outside the motion masks, at the static pipeline's cost per step,
+    /// before the space-time terms start; the decaying weights' schedule starts after it. 0.3:
+    /// better off the camera path on each of six tuning scenes (BENCHMARKS.md §6). Checkpoints
+    /// from before it read 0 (their runs go on as they started).
+    #[serde(default)]
+    pub static_warm_up: f64,
     /// Random points per step for the dynamic sparsity term (`weights.sparsity`).
     #[serde(default = "default_sparsity_points")]
     pub sparsity_points: usize,
@@ -182,6 +195,10 @@ fn default_static_batch() -> bool {
 }
 
 fn default_static_batch_scale() -> f32 {
+    1.0
+}
+
+fn default_space_time_share() -> f32 {
     1.0
 }
 
@@ -242,7 +259,9 @@ impl NsffConfig {
             hard_fraction: default_hard_fraction(),
             static_batch: default_static_batch(),
             static_batch_scale: default_static_batch_scale(),
+            space_time_share: default_space_time_share(),
             dynamic_photo_masked: false,
+            static_warm_up: 0.3,
             sparsity_points: default_sparsity_points(),
         }
     }

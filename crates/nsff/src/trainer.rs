@@ -40,6 +40,8 @@ pub struct NsffTrainer {
     pub run_dir: PathBuf,
     pub device: Device,
     n_rays: usize,
+    /// Rays of the static batch.
+    n_static_rays: usize,
 }
 
 /// Loads the video dataset a config names and prepares flows and the motion decision.
@@ -94,6 +96,7 @@ impl NsffTrainer {
         }
         let optim = Optimizer::new(&cfg.base);
         let n_rays = cfg.rays;
+        let n_static_rays = cfg.rays;
         Ok(NsffTrainer {
             cfg,
             video,
@@ -104,6 +107,7 @@ impl NsffTrainer {
             run_dir: run_dir.to_path_buf(),
             device,
             n_rays,
+            n_static_rays,
         })
     }
 
@@ -141,6 +145,9 @@ impl NsffTrainer {
         if state.n_rays > 0 {
             self.n_rays = state.n_rays;
         }
+        if state.n_static_rays > 0 {
+            self.n_static_rays = state.n_static_rays;
+        }
         Ok(())
     }
 
@@ -153,6 +160,7 @@ impl NsffTrainer {
             dynamic: self.has_dynamic(),
             moving_fraction: self.video.moving_fraction,
             n_rays: self.n_rays,
+            n_static_rays: self.n_static_rays,
         };
         let mut s = Sections::default();
         s.push_json("state", &state, &path)?;
@@ -174,7 +182,8 @@ impl NsffTrainer {
             .wrapping_mul(0x9E37_79B9_7F4A_7C15)
             .wrapping_add(self.step as u64);
         let mut rng = StdRng::seed_from_u64(seed);
-        let Some((loss, stats)) = span("nsff_step_loss", || self.step_loss(&mut rng))? else {
+        let warm_up = self.in_static_warm_up();
+        let Some((loss, stats, static_samples)) = span("nsff_step_loss", || self.step_loss(&mut rng))? else {
             // Every ray missed the occupied space: nothing to learn from, count the step.
             self.step += 1;
             return Ok(Some(StepStats {
@@ -211,18 +220,39 @@ impl NsffTrainer {
             })?;
         }
         if self.model.occupancy.is_some() {
-            // Keep about `target_samples` samples per step, as the static trainer does.
+            // Keep each batch near its share of `target_samples`, as the static trainer does.
             let f = &self.cfg.base.fast;
-            let want = self.n_rays as f64 * f.target_samples as f64 / stats.samples.max(1) as f64;
-            self.n_rays = (want as usize).clamp(self.cfg.min_rays, self.cfg.rays.max(self.cfg.min_rays));
+            let share = if self.has_dynamic() {
+                self.cfg.space_time_share
+            } else {
+                1.0
+            };
+            let adapt = |rays: usize, samples: usize, share: f32| {
+                rays as f64 * f.target_samples as f64 * share as f64 / samples.max(1) as f64
+            };
+            if !warm_up {
+                let want = adapt(self.n_rays, stats.samples, share);
+                self.n_rays = (want as usize).clamp(self.cfg.min_rays, self.cfg.rays.max(self.cfg.min_rays));
+            }
+            if static_samples > 0 {
+                let want = adapt(self.n_static_rays, static_samples, self.cfg.static_batch_scale);
+                self.n_static_rays = (want as usize).clamp(f.min_rays, f.max_rays);
+            }
         }
         Ok(Some(StepStats { loss: value, ..stats }))
     }
 
-    /// Weight multiplier of the decaying terms (optical flow, depth) now.
+    /// Weight multiplier of the decaying terms (optical flow, depth) now; the budget's progress
+    /// counts from the end of the static warm-up.
     fn decay(&self) -> f64 {
         let progress = self.cfg.base.progress(self.step, self.elapsed);
-        self.cfg.decay(self.step, progress)
+        let w = self.cfg.static_warm_up.clamp(0.0, 0.99);
+        self.cfg.decay(self.step, ((progress - w) / (1.0 - w)).max(0.0))
+    }
+
+    /// Whether this step trains the static field alone (`static_warm_up`).
+    fn in_static_warm_up(&self) -> bool {
+        self.has_dynamic() && self.cfg.base.progress(self.step, self.elapsed) < self.cfg.static_warm_up
     }
 
     /// A random frame's rays: uniform pixels, plus (NSFF's hard mining, early on) pixels the flow
@@ -272,15 +302,25 @@ impl NsffTrainer {
         sample_rays(rays, bounds, self.cfg.samples, !bounds.open_far, march, Some(rng))
     }
 
-    /// The loss of one step (NSFF HEAD's terms, method.md §4.6); `None` when no ray has samples.
-    fn step_loss(&self, rng: &mut StdRng) -> Result<Option<(Tensor<1>, StepStats)>> {
+    /// The loss of one step (NSFF HEAD's terms, method.md §4.6), the space-time batch's stats and
+    /// the static batch's sample count (0 without one); `None` when no ray has samples.
+    fn step_loss(&self, rng: &mut StdRng) -> Result<Option<(Tensor<1>, StepStats, usize)>> {
+        if self.in_static_warm_up() {
+            // The static pipeline's step on pixels outside the motion masks.
+            let (rays_s, target_s) = self.still_pixels(self.n_static_rays.max(1), rng);
+            let target_s = tensor(target_s, 3, &self.device);
+            let still = span("nsff_static_batch", || {
+                self.static_photometric(&rays_s, target_s, rng)
+            })?;
+            return Ok(still.map(|(loss, m, n)| (loss, stats(m, rays_s.len(), n), n)));
+        }
         let batch = self.frame_batch(rng);
         let Some(dynamic) = &self.model.fields.dynamic else {
             // No independent motion: the static pipeline's photometric loss only.
             let Some((loss, m, s_n)) = self.static_photometric(&batch.rays, batch.target, rng)? else {
                 return Ok(None);
             };
-            return Ok(Some((loss, stats(m, batch.rays.len(), s_n))));
+            return Ok(Some((loss, stats(m, batch.rays.len(), s_n), 0)));
         };
         let (v, ds, dev) = (&self.video, &self.video.dataset, &self.device);
         let (k, rays, target, r_n) = (batch.frame, &batch.rays, &batch.target, batch.rays.len());
@@ -414,19 +454,20 @@ impl NsffTrainer {
             let sparse = span("nsff_sparsity", || self.sparsity(dynamic, v.times[k], rng))?;
             loss = loss + sparse * wts.sparsity;
         }
+        let mut static_samples = 0;
         if self.cfg.static_batch {
-            let n = (batch.n_uniform as f32 * self.cfg.static_batch_scale).round() as usize;
-            let (rays_s, target_s) = self.still_pixels(n.max(1), rng);
+            let (rays_s, target_s) = self.still_pixels(self.n_static_rays.max(1), rng);
             let still = span("nsff_static_batch", || {
                 self.static_photometric(&rays_s, tensor(target_s, 3, dev), rng)
             })?;
-            if let Some((loss_s, _, _)) = still {
+            if let Some((loss_s, _, n)) = still {
                 loss = loss + loss_s;
+                static_samples = n;
             }
         }
-        // Ray and sample counts of the space-time batch (what the ray count adapts to).
+        // Ray and sample counts of the space-time batch (what its ray count adapts to).
         let m = read_scalar(mse_cb.inner(), "loss")?;
-        Ok(Some((loss, stats(m, r_n, s_n))))
+        Ok(Some((loss, stats(m, r_n, s_n), static_samples)))
     }
 
     /// The terms towards neighbouring frame `j`: the photometric loss of the warped render (the
@@ -683,5 +724,55 @@ impl nerf::train_loop::Trainable for NsffTrainer {
         self.model.occupancy.as_ref().map_or(String::new(), |o| {
             format!(", {:.1}% occupied", 100.0 * o.occupied_fraction())
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nerf::config::Preset;
+    use nerf_data::LoadOptions;
+
+    fn tables(grids: Vec<std::sync::Arc<nerf_core::encoding::HashGrid>>) -> Vec<Vec<f32>> {
+        grids.iter().map(|g| g.table()).collect()
+    }
+
+    /// During the static warm-up a step leaves the dynamic field untouched and trains the static
+    /// one; after it the space-time terms reach the dynamic field.
+    #[test]
+    fn static_warm_up_trains_the_static_field_alone() {
+        let dir = std::env::temp_dir().join(format!("nsff-warm-up-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let data = dir.join("video");
+        let synth = nerf_synth::SynthConfig::new(nerf_synth::Preset::Dynamic)
+            .with_size(32, 24)
+            .with_views(6, 2);
+        nerf_synth::generate(&synth, &data).unwrap();
+        let mut cfg = NsffConfig::new(Preset::Fast, data, LoadOptions::default());
+        cfg.dynamic = DynamicMode::On;
+        let run_dir = dir.join("run");
+        let video = load_video(&cfg, &run_dir, true).unwrap();
+        cfg.adapt_to(&video.dataset, video.frames.len());
+        cfg.base.steps = 4;
+        cfg.base.time_budget = None;
+        cfg.static_warm_up = 0.5;
+        let mut t = NsffTrainer::new(cfg, video, &run_dir).unwrap();
+        let dynamic = |t: &NsffTrainer| tables(t.model.fields.dynamic.as_ref().unwrap().host_params());
+        let still = |t: &NsffTrainer| tables(t.model.fields.static_field.host_params());
+        let (dyn0, st0) = (dynamic(&t), still(&t));
+        for _ in 0..2 {
+            assert!(t.in_static_warm_up());
+            t.train_step().unwrap().expect("a finite warm-up step");
+        }
+        assert_eq!(dynamic(&t), dyn0, "the warm-up changed the dynamic field");
+        assert_ne!(still(&t), st0, "the warm-up did not train the static field");
+        assert!(!t.in_static_warm_up());
+        t.train_step().unwrap().expect("a finite space-time step");
+        assert_ne!(
+            dynamic(&t),
+            dyn0,
+            "the space-time step did not reach the dynamic field"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
