@@ -183,7 +183,9 @@ impl NsffTrainer {
             .wrapping_add(self.step as u64);
         let mut rng = StdRng::seed_from_u64(seed);
         let warm_up = self.in_static_warm_up();
-        let Some((loss, stats, static_samples)) = span("nsff_step_loss", || self.step_loss(&mut rng))? else {
+        let Some((loss, stats, static_samples)) =
+            span("nsff_step_loss", || self.step_loss(warm_up, &mut rng))?
+        else {
             // Every ray missed the occupied space: nothing to learn from, count the step.
             self.step += 1;
             return Ok(Some(StepStats {
@@ -303,16 +305,12 @@ impl NsffTrainer {
     }
 
     /// The loss of one step (NSFF HEAD's terms, method.md §4.6), the space-time batch's stats and
-    /// the static batch's sample count (0 without one); `None` when no ray has samples.
-    fn step_loss(&self, rng: &mut StdRng) -> Result<Option<(Tensor<1>, StepStats, usize)>> {
-        if self.in_static_warm_up() {
-            // The static pipeline's step on pixels outside the motion masks.
-            let (rays_s, target_s) = self.still_pixels(self.n_static_rays.max(1), rng);
-            let target_s = tensor(target_s, 3, &self.device);
-            let still = span("nsff_static_batch", || {
-                self.static_photometric(&rays_s, target_s, rng)
-            })?;
-            return Ok(still.map(|(loss, m, n)| (loss, stats(m, rays_s.len(), n), n)));
+    /// the static batch's sample count (0 without one); `None` when no ray has samples. During the
+    /// static warm-up (`warm_up`) the static batch alone.
+    fn step_loss(&self, warm_up: bool, rng: &mut StdRng) -> Result<Option<(Tensor<1>, StepStats, usize)>> {
+        if warm_up {
+            let still = self.static_batch(rng)?;
+            return Ok(still.map(|(loss, m, rays, n)| (loss, stats(m, rays, n), n)));
         }
         let batch = self.frame_batch(rng);
         let Some(dynamic) = &self.model.fields.dynamic else {
@@ -455,15 +453,11 @@ impl NsffTrainer {
             loss = loss + sparse * wts.sparsity;
         }
         let mut static_samples = 0;
-        if self.cfg.static_batch {
-            let (rays_s, target_s) = self.still_pixels(self.n_static_rays.max(1), rng);
-            let still = span("nsff_static_batch", || {
-                self.static_photometric(&rays_s, tensor(target_s, 3, dev), rng)
-            })?;
-            if let Some((loss_s, _, n)) = still {
-                loss = loss + loss_s;
-                static_samples = n;
-            }
+        if self.cfg.static_batch
+            && let Some((loss_s, _, _, n)) = self.static_batch(rng)?
+        {
+            loss = loss + loss_s;
+            static_samples = n;
         }
         // Ray and sample counts of the space-time batch (what its ray count adapts to).
         let m = read_scalar(mse_cb.inner(), "loss")?;
@@ -569,6 +563,17 @@ impl NsffTrainer {
             dy.sigma,
             step,
         ))
+    }
+
+    /// The static batch: the static pipeline's step on `n_static_rays` pixels outside the motion
+    /// masks. Its loss, loss value, ray and sample counts; `None` when no ray has samples.
+    fn static_batch(&self, rng: &mut StdRng) -> Result<Option<(Tensor<1>, f64, usize, usize)>> {
+        let (rays, target) = self.still_pixels(self.n_static_rays.max(1), rng);
+        let target = tensor(target, 3, &self.device);
+        let still = span("nsff_static_batch", || {
+            self.static_photometric(&rays, target, rng)
+        })?;
+        Ok(still.map(|(loss, m, n)| (loss, m, rays.len(), n)))
     }
 
     /// `n` rays from random frames at pixels outside their motion masks, and their colours
