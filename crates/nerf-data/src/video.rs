@@ -144,7 +144,7 @@ fn check_array(path: &Path, what: &str, arr: &NpyArray, want: &[usize], h: usize
 }
 
 /// `disp/<stem>.npy`: H x W (or H x W x 1) relative inverse depth.
-fn read_disparity(path: &Path, w: usize, h: usize) -> Result<Vec<f32>> {
+pub fn read_disparity(path: &Path, w: usize, h: usize) -> Result<Vec<f32>> {
     let mut arr = crate::npy::read_npy(path)?;
     if arr.shape == [h, w, 1] {
         arr.shape.pop();
@@ -183,7 +183,7 @@ pub fn read_flow(path: &Path, w: usize, h: usize) -> Result<FlowField> {
 }
 
 /// `motion_masks/<stem>.png`: the first channel in [0, 1] (255 = probably moving).
-fn read_mask(path: &Path, w: usize, h: usize) -> Result<Vec<f32>> {
+pub fn read_mask(path: &Path, w: usize, h: usize) -> Result<Vec<f32>> {
     let img = Image::load(path)?;
     if (img.width as usize, img.height as usize) != (w, h) {
         return Err(DataError::invalid(

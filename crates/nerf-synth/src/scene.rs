@@ -543,6 +543,15 @@ impl Scene {
             .map(|(k, _)| k)
     }
 
+    /// Distance from the world point `p` to the nearest object surface at time τ (exact for
+    /// rigid objects; for scaled ones, the distance in the object's own frame).
+    pub fn surface_distance(&self, p: Vec3, time: f64) -> f64 {
+        self.objects
+            .iter()
+            .map(|o| o.shape.signed_distance(o.to_local(p, time)).abs())
+            .fold(f64::INFINITY, f64::min)
+    }
+
     /// 3-D displacement from time `t0` to `t1` of the point that sits at world `p` at `t0` and
     /// moves with object `object` (the same local point). Exactly zero for static objects and for `t0 == t1`.
     pub fn object_scene_flow(&self, object: usize, p: Vec3, t0: f64, t1: f64) -> Vec3 {

@@ -1,11 +1,14 @@
 //! Checkpoint files: named binary sections in one file, written atomically (temporary file in
 //! the same folder, fsync, rename), so an interrupted write never damages the last checkpoint.
+//! A CRC-32 of the content closes the file and is checked on every read: a damaged checkpoint is
+//! refused with an error naming it rather than loaded. A run keeps the checkpoint before its last
+//! one (`checkpoint.prev.bin`), which `--resume` falls back to when the last one is damaged.
 //!
 //! A model's record is its burn module record plus its host-side tables (hash grids and their
 //! sparse-Adam moments) and occupancy grid; [`write_model_parts`] and [`read_model_parts`] are the
 //! one path every model (static, NSFF, a user's own field) saves and loads them through.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use burn::module::Module;
@@ -56,7 +59,25 @@ pub fn load_trained_with_field<F: FieldModule>(
     Ok(TrainedModel { state, model, device })
 }
 
-const MAGIC: &[u8] = b"NERFRS-CKPT-1\n";
+/// Format 2: header, sections, CRC-32 of everything before it (little-endian u32).
+const MAGIC: &[u8] = b"NERFRS-CKPT-2\n";
+/// Format 1 had no checksum; still read so older runs load.
+const MAGIC_V1: &[u8] = b"NERFRS-CKPT-1\n";
+
+/// Where a run keeps the checkpoint that its last save replaced.
+pub fn previous_path(path: &Path) -> PathBuf {
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!("{stem}.prev.bin"))
+}
+
+/// Whether `run_dir` holds a checkpoint to resume from (the last one or the one before it).
+pub fn has_checkpoint(run_dir: &Path) -> bool {
+    let path = run_dir.join(crate::train_loop::CHECKPOINT);
+    path.exists() || previous_path(&path).exists()
+}
 
 /// Named byte sections.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -86,36 +107,109 @@ impl Sections {
             out.extend((data.len() as u64).to_le_bytes());
             out.extend(data);
         }
+        let crc = nerf_data::npz::crc32(&out);
+        out.extend(crc.to_le_bytes());
         out
     }
 
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self> {
         let bad = |msg: String| ModelError::checkpoint(path, msg);
-        if !bytes.starts_with(MAGIC) {
+        let body = if bytes.starts_with(MAGIC) {
+            if bytes.len() < MAGIC.len() + 4 {
+                return Err(bad(format!("truncated: {} bytes", bytes.len())));
+            }
+            let (content, stored) = bytes.split_at(bytes.len() - 4);
+            let (stored, computed) = (u32_le(stored), nerf_data::npz::crc32(content));
+            if stored != computed {
+                return Err(bad(format!(
+                    "damaged: checksum mismatch (stored {stored:08x}, content {computed:08x}); \
+                     the file is truncated or corrupt"
+                )));
+            }
+            &content[MAGIC.len()..]
+        } else if bytes.starts_with(MAGIC_V1) {
+            &bytes[MAGIC_V1.len()..]
+        } else {
             return Err(bad("not a checkpoint of this program (bad header)".into()));
-        }
-        let mut at = MAGIC.len();
-        let mut take = |n: usize, what: &str| -> Result<&[u8]> {
-            let s = bytes
-                .get(at..at + n)
-                .ok_or_else(|| bad(format!("truncated at byte {at} while reading {what}")))?;
-            at += n;
+        };
+        let mut at = 0usize;
+        let mut take = |n: u64, what: &str| -> Result<&[u8]> {
+            let s = usize::try_from(n)
+                .ok()
+                .and_then(|n| at.checked_add(n))
+                .and_then(|end| body.get(at..end))
+                .ok_or_else(|| bad(format!("truncated while reading {what}")))?;
+            at += s.len();
             Ok(s)
         };
-        let count = u32_le(take(4, "the section count")?) as usize;
+        let count = u32_le(take(4, "the section count")?);
         let mut sections = Sections::default();
         for _ in 0..count {
-            let len = u32_le(take(4, "a section name")?) as usize;
-            let name = String::from_utf8_lossy(take(len, "a section name")?).into_owned();
-            let len = u64_le(take(8, &name)?) as usize;
+            let len = u32_le(take(4, "a section name")?);
+            let name = String::from_utf8_lossy(take(len.into(), "a section name")?).into_owned();
+            let len = u64_le(take(8, &name)?);
             let data = take(len, &name)?.to_vec();
             sections.push(&name, data);
+        }
+        if at != body.len() {
+            return Err(bad(format!(
+                "{} unexpected bytes after the last section",
+                body.len() - at
+            )));
         }
         Ok(sections)
     }
 
     pub fn write(&self, path: &Path) -> Result<()> {
         Ok(nerf_data::image::write_atomic(path, &self.to_bytes())?)
+    }
+
+    /// Writes a run's checkpoint atomically and keeps the one it replaces at
+    /// [`previous_path`] (a hard link where the file system allows, else a copy).
+    pub fn write_keeping_previous(&self, path: &Path) -> Result<()> {
+        if path.exists() {
+            let prev = previous_path(path);
+            let _ = std::fs::remove_file(&prev);
+            if std::fs::hard_link(path, &prev).is_err() {
+                std::fs::copy(path, &prev).map_err(|e| {
+                    ModelError::checkpoint(&prev, format!("cannot keep the previous checkpoint: {e}"))
+                })?;
+            }
+        }
+        self.write(path)
+    }
+
+    /// The checkpoint to resume `run_dir` from: `checkpoint.bin`, or, when that is missing or
+    /// damaged and the previous one reads, the previous one (said on stderr; the damaged file is
+    /// moved aside to `checkpoint.bin.damaged` so the next save does not keep it as previous).
+    /// Returns the sections and the file they came from.
+    pub fn read_for_resume(run_dir: &Path) -> Result<(Self, PathBuf)> {
+        let path = run_dir.join(crate::train_loop::CHECKPOINT);
+        let err = match Self::read(&path) {
+            Ok(s) => return Ok((s, path)),
+            Err(e) => e,
+        };
+        let prev = previous_path(&path);
+        if !prev.exists() {
+            return Err(err);
+        }
+        let s = Self::read(&prev).map_err(|prev_err| {
+            ModelError::checkpoint(
+                &path,
+                format!("{err}; the previous checkpoint is no better: {prev_err}"),
+            )
+        })?;
+        if path.exists() {
+            let aside = path.with_extension("bin.damaged");
+            if std::fs::rename(&path, &aside).is_ok() {
+                eprintln!("warning: {err}; moved it to {}", aside.display());
+            }
+        }
+        eprintln!(
+            "warning: resuming from the previous checkpoint {}",
+            prev.display()
+        );
+        Ok((s, prev))
     }
 
     pub fn read(path: &Path) -> Result<Self> {
@@ -276,13 +370,83 @@ mod tests {
         let bytes = s.to_bytes();
         let p = Path::new("run/checkpoint.bin");
         assert_eq!(Sections::from_bytes(&bytes, p).unwrap(), s);
-        let err = Sections::from_bytes(&bytes[..bytes.len() - 1], p)
-            .unwrap_err()
-            .to_string();
+        for cut in 0..bytes.len() {
+            let err = Sections::from_bytes(&bytes[..cut], p).unwrap_err().to_string();
+            assert!(
+                err.contains("checkpoint.bin") && (err.contains("truncated") || err.contains("header")),
+                "cut at {cut}: {err}"
+            );
+        }
+        assert!(s.require("missing", p).is_err());
+    }
+
+    #[test]
+    fn every_flipped_bit_is_refused() {
+        let mut s = Sections::default();
+        s.push("state", br#"{"step": 3}"#.to_vec());
+        s.push("model", (0..64).collect());
+        let bytes = s.to_bytes();
+        let p = Path::new("run/checkpoint.bin");
+        for bit in 0..8 * bytes.len() {
+            let mut b = bytes.clone();
+            b[bit / 8] ^= 1 << (bit % 8);
+            let err = Sections::from_bytes(&b, p).unwrap_err().to_string();
+            assert!(err.contains("checkpoint.bin"), "bit {bit}: {err}");
+            if bit >= 8 * MAGIC.len() {
+                assert!(err.contains("checksum mismatch"), "bit {bit}: {err}");
+            }
+        }
+    }
+
+    #[test]
+    fn format_1_without_checksum_still_reads() {
+        let mut s = Sections::default();
+        s.push("state", b"{}".to_vec());
+        let v2 = s.to_bytes();
+        let mut v1 = MAGIC_V1.to_vec();
+        v1.extend(&v2[MAGIC.len()..v2.len() - 4]);
+        assert_eq!(Sections::from_bytes(&v1, Path::new("c.bin")).unwrap(), s);
+    }
+
+    #[test]
+    fn resume_falls_back_to_the_previous_checkpoint() {
+        let dir = std::env::temp_dir().join(format!("nerf-ckpt-prev-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(crate::train_loop::CHECKPOINT);
+        let save = |step: u8| {
+            let mut s = Sections::default();
+            s.push("state", vec![step]);
+            s.write_keeping_previous(&path).unwrap();
+            s
+        };
+        let first = save(1);
+        let second = save(2);
+        assert_eq!(Sections::read(&previous_path(&path)).unwrap(), first);
+        assert_eq!(Sections::read_for_resume(&dir).unwrap().0, second);
+
+        // Damage the last checkpoint: resume takes the previous one and moves the damaged aside.
+        let mut bytes = std::fs::read(&path).unwrap();
+        let mid = bytes.len() / 2;
+        bytes[mid] ^= 0x10;
+        std::fs::write(&path, &bytes).unwrap();
+        assert!(Sections::read(&path).is_err());
+        let (s, from) = Sections::read_for_resume(&dir).unwrap();
+        assert_eq!((s, from), (first.clone(), previous_path(&path)));
+        assert!(!path.exists() && path.with_extension("bin.damaged").exists());
+        // The next save keeps the good previous checkpoint.
+        let third = save(3);
+        assert_eq!(Sections::read(&previous_path(&path)).unwrap(), first);
+        assert_eq!(Sections::read_for_resume(&dir).unwrap().0, third);
+
+        // Both damaged: an error naming the last checkpoint and the previous one.
+        std::fs::write(&path, b"NERFRS-CKPT-2\n????").unwrap();
+        std::fs::write(previous_path(&path), b"garbage").unwrap();
+        let err = Sections::read_for_resume(&dir).unwrap_err().to_string();
         assert!(
-            err.contains("checkpoint.bin") && err.contains("truncated"),
+            err.contains("checkpoint.bin") && err.contains("checkpoint.prev.bin"),
             "{err}"
         );
-        assert!(s.require("missing", p).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

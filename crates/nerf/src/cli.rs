@@ -82,3 +82,52 @@ impl CommonTrainArgs {
         cfg.device = self.device.clone();
     }
 }
+
+/// `export mesh` options shared by `nerf` and `nsff`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct MeshArgs {
+    /// Run folder written by `train`.
+    pub run_dir: PathBuf,
+    /// Grid cells along the longest side of the scene box.
+    #[arg(long, default_value_t = 256)]
+    pub resolution: usize,
+    /// Density of the surface (the level set σ = THRESHOLD).
+    #[arg(long, default_value_t = crate::export::DEFAULT_THRESHOLD)]
+    pub threshold: f32,
+    /// Output file (default: RUN_DIR/mesh.ply).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Keep surfaces that no training view sees (by default they are dropped: the field holds
+    /// whatever it made up there, e.g. under a ground plane).
+    #[arg(long)]
+    pub no_cull: bool,
+}
+
+/// `export points` options shared by `nerf` and `nsff`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct PointsArgs {
+    /// Run folder written by `train`.
+    pub run_dir: PathBuf,
+    /// Render every STRIDE-th pixel of each training view in each direction.
+    #[arg(long, default_value_t = 2)]
+    pub stride: u32,
+    /// Keep pixels whose rendered opacity reaches this.
+    #[arg(long, default_value_t = 0.95)]
+    pub min_opacity: f32,
+    /// Output file (default: RUN_DIR/points.ply).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// `view` options shared by `nerf` and `nsff`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ViewArgs {
+    /// Run folder written by `train`.
+    pub run_dir: PathBuf,
+    /// Port to listen on (0: any free port).
+    #[arg(long, default_value_t = 7007)]
+    pub port: u16,
+    /// Address to listen on; the default serves this machine only.
+    #[arg(long, default_value = "127.0.0.1")]
+    pub host: String,
+}

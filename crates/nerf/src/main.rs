@@ -4,9 +4,14 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use nerf::cli::CommonTrainArgs;
+use nerf::checkpoint::has_checkpoint;
+use nerf::cli::{CommonTrainArgs, MeshArgs, PointsArgs, ViewArgs};
 use nerf::config::TrainConfig;
 use nerf::error::{ModelError, Result};
+use nerf::export::{
+    PointCloud, StaticVolume, culling_cameras, require_bounded, run_mesh_export, run_points_export,
+    strided_pixels,
+};
 use nerf::model::StaticModel;
 use nerf::render::{FrameWriter, PathKind, default_path, path_cameras};
 use nerf::trainer::{CHECKPOINT, Trainer, load_dataset};
@@ -41,6 +46,11 @@ enum Command {
     },
     /// Render a trained run along a camera path or at the cameras of a Blender-format transforms file.
     Render(RenderArgs),
+    /// Look around a trained run in the browser: a local web viewer (drag orbits, wheel zooms).
+    View(ViewArgs),
+    /// Take geometry out of a trained run as binary PLY (MeshLab, Blender, Open3D).
+    #[command(subcommand)]
+    Export(ExportWhat),
     /// Write LLFF's poses_bounds.npy from a COLMAP sparse model (the "make your own dataset" step).
     Colmap2poses {
         /// A capture folder with sparse/0 (or sparse/), or the model folder itself.
@@ -72,6 +82,14 @@ enum Command {
         #[arg(long)]
         mono_disparity: bool,
     },
+}
+
+#[derive(Subcommand)]
+enum ExportWhat {
+    /// A triangle mesh of the density field's level set in the scene box, coloured by the field.
+    Mesh(MeshArgs),
+    /// A coloured point cloud of the surfaces the training views see (rendered depth).
+    Points(PointsArgs),
 }
 
 #[derive(clap::Args)]
@@ -144,6 +162,49 @@ fn run(cli: Cli) -> Result<()> {
             save_images,
         } => eval(&run_dir, &split, save_images),
         Command::Render(args) => render(args),
+        Command::View(args) => {
+            let t = open_run(&args.run_dir)?;
+            let title = format!("{} (step {})", args.run_dir.display(), t.step);
+            let scene = nerf::viewer::ViewerScene::of(&t.dataset, &title);
+            let model = nerf::viewer::StaticView {
+                model: &t.model,
+                dataset: &t.dataset,
+                device: &t.device,
+            };
+            nerf::viewer::run(&model, &scene, &args.host, args.port)
+        }
+        Command::Export(ExportWhat::Mesh(args)) => {
+            let t = open_run(&args.run_dir)?;
+            require_bounded(&t.dataset, &args.run_dir)?;
+            let volume = StaticVolume {
+                model: &t.model,
+                device: &t.device,
+            };
+            let views = culling_cameras(&t.dataset, 32, 128);
+            let render_depth = |cam: &nerf_data::Camera| {
+                let rays = t.dataset.rays_for(cam, 0..cam.intrinsics.num_pixels() as u32);
+                let r = t.model.render_rays(&rays, t.dataset.background, &t.device)?;
+                Ok((r.depth, r.opacity))
+            };
+            run_mesh_export(&volume, &args, &t.cfg.data, 0.0, &views, &render_depth)?;
+            Ok(())
+        }
+        Command::Export(ExportWhat::Points(args)) => {
+            let t = open_run(&args.run_dir)?;
+            require_bounded(&t.dataset, &args.run_dir)?;
+            let mut cloud = PointCloud::default();
+            let bar = nerf::export::progress(true, t.dataset.train.len() as u64, "views");
+            for &v in &t.dataset.train {
+                let cam = &t.dataset.views[v].camera;
+                let rays = t.dataset.rays_for(cam, strided_pixels(cam, args.stride));
+                let r = t.model.render_rays(&rays, t.dataset.background, &t.device)?;
+                cloud.add_rendered(&rays, &r.rgb, &r.depth, &r.opacity, args.min_opacity);
+                bar.inc(1);
+            }
+            bar.finish_and_clear();
+            run_points_export(&cloud, &args, t.model.bounds.aabb, &t.cfg.data, 0.0)?;
+            Ok(())
+        }
         Command::Colmap2poses { dir, out } => {
             let model_dir = nerf_data::colmap::find_model_dir(&dir).ok_or_else(|| {
                 DataError::invalid(
@@ -203,7 +264,7 @@ fn train(args: TrainArgs) -> Result<()> {
     let common = &args.common;
     let run_dir = common.run_dir("");
     let mut trainer = if common.resume {
-        if !run_dir.join(CHECKPOINT).exists() {
+        if !has_checkpoint(&run_dir) {
             return Err(ModelError::usage(
                 &run_dir,
                 "--resume: no checkpoint.bin in the run folder",
@@ -383,7 +444,8 @@ fn render_cameras(t: &Run, cameras: &[nerf_data::Camera], out: &Path, gif: &str)
         bar.inc(1);
     }
     bar.finish_and_clear();
-    Ok(writer.finish_gif(gif)?)
+    eprintln!("{}", writer.finish(gif)?);
+    Ok(())
 }
 
 fn render_path(t: &Run, kind: PathKind, frames: usize, out: &Path) -> Result<()> {

@@ -45,54 +45,106 @@ pub fn path_cameras(dataset: &Dataset, kind: PathKind, frames: usize) -> Vec<Cam
 /// An orbit around the centre of the scene box, in the plane perpendicular to the mean camera
 /// up vector, at the training cameras' mean distance and elevation.
 pub fn orbit(dataset: &Dataset, frames: usize) -> Vec<Pose> {
-    let center = [0, 1, 2].map(|a| 0.5 * (dataset.aabb[0][a] + dataset.aabb[1][a]) as f64);
-    let poses: Vec<Pose> = dataset
-        .train
-        .iter()
-        .map(|&v| dataset.views[v].camera.pose)
-        .collect();
-    let up = math::normalize(
-        poses
-            .iter()
-            .fold([0.0; 3], |acc, p| math::add(acc, math::column(&p.rotation, 1))),
-    );
-    let n = poses.len().max(1) as f64;
-    let radius = poses
-        .iter()
-        .map(|p| math::norm(math::sub(p.translation, center)))
-        .sum::<f64>()
-        / n;
-    let elevation = poses
-        .iter()
-        .map(|p| {
-            let d = math::sub(p.translation, center);
-            (math::dot(d, up) / math::norm(d).max(1e-12))
-                .clamp(-1.0, 1.0)
-                .asin()
-        })
-        .sum::<f64>()
-        / n;
-    // Any unit vector perpendicular to up starts the orbit.
-    let seed = if up[0].abs() < 0.9 {
-        [1.0, 0.0, 0.0]
-    } else {
-        [0.0, 1.0, 0.0]
-    };
-    let e1 = math::normalize(math::cross(up, seed));
-    let e2 = math::cross(up, e1);
+    let o = OrbitFrame::of(dataset);
     (0..frames)
         .map(|k| {
-            let theta = std::f64::consts::TAU * k as f64 / frames.max(1) as f64;
-            let dir = math::add(
-                math::scale(
-                    math::add(math::scale(e1, theta.cos()), math::scale(e2, theta.sin())),
-                    elevation.cos(),
-                ),
-                math::scale(up, elevation.sin()),
-            );
-            Pose::look_at(math::add(center, math::scale(dir, radius)), center, up)
+            o.pose(
+                std::f64::consts::TAU * k as f64 / frames.max(1) as f64,
+                o.elevation,
+                o.radius,
+            )
         })
         .collect()
+}
+
+/// Spherical coordinates about the scene: centre of the scene box, the training cameras' mean
+/// up vector, and their mean distance and elevation (what `orbit` and the viewer move on).
+#[derive(Clone, Copy, Debug)]
+pub struct OrbitFrame {
+    pub center: math::Vec3,
+    pub up: math::Vec3,
+    /// Azimuth 0 and 90° directions, perpendicular to `up`.
+    pub e1: math::Vec3,
+    pub e2: math::Vec3,
+    pub radius: f64,
+    /// Radians above the plane perpendicular to `up`.
+    pub elevation: f64,
+}
+
+impl OrbitFrame {
+    pub fn of(dataset: &Dataset) -> Self {
+        let center = [0, 1, 2].map(|a| 0.5 * (dataset.aabb[0][a] + dataset.aabb[1][a]) as f64);
+        let poses: Vec<Pose> = dataset
+            .train
+            .iter()
+            .map(|&v| dataset.views[v].camera.pose)
+            .collect();
+        let up = math::normalize(
+            poses
+                .iter()
+                .fold([0.0; 3], |acc, p| math::add(acc, math::column(&p.rotation, 1))),
+        );
+        let n = poses.len().max(1) as f64;
+        let radius = poses
+            .iter()
+            .map(|p| math::norm(math::sub(p.translation, center)))
+            .sum::<f64>()
+            / n;
+        let elevation = poses
+            .iter()
+            .map(|p| {
+                let d = math::sub(p.translation, center);
+                (math::dot(d, up) / math::norm(d).max(1e-12))
+                    .clamp(-1.0, 1.0)
+                    .asin()
+            })
+            .sum::<f64>()
+            / n;
+        // Any unit vector perpendicular to up starts the orbit.
+        let seed = if up[0].abs() < 0.9 {
+            [1.0, 0.0, 0.0]
+        } else {
+            [0.0, 1.0, 0.0]
+        };
+        let e1 = math::normalize(math::cross(up, seed));
+        let e2 = math::cross(up, e1);
+        OrbitFrame {
+            center,
+            up,
+            e1,
+            e2,
+            radius,
+            elevation,
+        }
+    }
+
+    /// A camera at (azimuth, elevation, distance) looking at the centre.
+    pub fn pose(&self, azimuth: f64, elevation: f64, distance: f64) -> Pose {
+        let dir = math::add(
+            math::scale(
+                math::add(
+                    math::scale(self.e1, azimuth.cos()),
+                    math::scale(self.e2, azimuth.sin()),
+                ),
+                elevation.cos(),
+            ),
+            math::scale(self.up, elevation.sin()),
+        );
+        Pose::look_at(
+            math::add(self.center, math::scale(dir, distance)),
+            self.center,
+            self.up,
+        )
+    }
+
+    /// (azimuth, elevation, distance) of a camera position.
+    pub fn coordinates(&self, eye: math::Vec3) -> (f64, f64, f64) {
+        let d = math::sub(eye, self.center);
+        let r = math::norm(d).max(1e-12);
+        let azimuth = math::dot(d, self.e2).atan2(math::dot(d, self.e1));
+        let elevation = (math::dot(d, self.up) / r).clamp(-1.0, 1.0).asin();
+        (azimuth, elevation, r)
+    }
 }
 
 /// `frames` poses spaced evenly along the training cameras' path (in view order), each
@@ -149,17 +201,8 @@ impl<'a> FrameWriter<'a> {
         let name = format!("{k:04}.png");
         let img = Image::from_data(width, height, 3, rgb);
         img.save_png(&self.dir.join(&name))?;
-        let (lo, hi) = self.depth_range.unwrap_or_else(|| depth_range(depth, opacity));
-        let d: Vec<f32> = depth
-            .iter()
-            .zip(opacity)
-            .map(|(d, a)| {
-                // Expected depth is weighted by opacity; normalise it before mapping.
-                let z = if *a > 1e-3 { d / a } else { hi };
-                (1.0 - (z - lo) / (hi - lo).max(1e-6)).clamp(0.0, 1.0) * a.clamp(0.0, 1.0)
-            })
-            .collect();
-        Image::from_data(width, height, 1, d).save_png(&self.dir.join("depth").join(&name))?;
+        depth_image(width, height, depth, opacity, self.depth_range)
+            .save_png(&self.dir.join("depth").join(&name))?;
         Image::from_data(width, height, 1, opacity.to_vec())
             .save_png(&self.dir.join("opacity").join(&name))?;
         self.frames.push(img);
@@ -171,6 +214,79 @@ impl<'a> FrameWriter<'a> {
         let path = self.dir.join(name);
         write_gif(&path, &self.frames, 4)
     }
+
+    /// Writes the GIF `name` and, when `ffmpeg` is on PATH, the same frames as an H.264 MP4
+    /// beside it (`name` with `.mp4`). Returns a line saying what was written.
+    pub fn finish(&self, name: &str) -> Result<String> {
+        self.finish_gif(name)?;
+        let gif = self.dir.join(name);
+        let mp4 = gif.with_extension("mp4");
+        Ok(if !ffmpeg_available() {
+            format!("wrote {} (no ffmpeg on PATH, so no MP4)", gif.display())
+        } else {
+            match write_mp4(self.dir, &mp4, 25) {
+                Ok(()) => format!("wrote {} and {} (H.264, ffmpeg)", gif.display(), mp4.display()),
+                Err(msg) => format!("wrote {}; ffmpeg failed, so no MP4: {msg}", gif.display()),
+            }
+        })
+    }
+}
+
+/// Whether an `ffmpeg` that runs is on PATH.
+pub fn ffmpeg_available() -> bool {
+    std::process::Command::new("ffmpeg")
+        .arg("-version")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+/// Encodes `frames/0000.png, 0001.png, …` as H.264 (yuv420p, sizes padded to even, as players
+/// need) into `out` through a temporary file and a rename. Err: ffmpeg's own message.
+pub fn write_mp4(frames: &Path, out: &Path, fps: u32) -> std::result::Result<(), String> {
+    let tmp = out.with_extension("tmp.mp4");
+    let result = std::process::Command::new("ffmpeg")
+        .args(["-y", "-loglevel", "error", "-framerate", &fps.to_string(), "-i"])
+        .arg(frames.join("%04d.png"))
+        .args(["-c:v", "libx264", "-pix_fmt", "yuv420p"])
+        .args(["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-movflags", "+faststart"])
+        .arg(&tmp)
+        .output()
+        .map_err(|e| e.to_string())
+        .and_then(|o| {
+            if o.status.success() {
+                std::fs::rename(&tmp, out).map_err(|e| e.to_string())
+            } else {
+                Err(String::from_utf8_lossy(&o.stderr).trim().to_string())
+            }
+        });
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// Depth for display, near = bright, over `range` (default: the frame's own
+/// [`depth_range`]); transparent pixels black. `depth` is opacity-weighted, as renders return it.
+pub fn depth_image(
+    width: u32,
+    height: u32,
+    depth: &[f32],
+    opacity: &[f32],
+    range: Option<(f32, f32)>,
+) -> Image {
+    let (lo, hi) = range.unwrap_or_else(|| depth_range(depth, opacity));
+    let d: Vec<f32> = depth
+        .iter()
+        .zip(opacity)
+        .map(|(d, a)| {
+            // Normalise the expected depth by opacity before mapping.
+            let z = if *a > 1e-3 { d / a } else { hi };
+            (1.0 - (z - lo) / (hi - lo).max(1e-6)).clamp(0.0, 1.0) * a.clamp(0.0, 1.0)
+        })
+        .collect();
+    Image::from_data(width, height, 1, d)
 }
 
 /// The 2nd–98th percentile of normalised depth over mostly opaque pixels.
@@ -227,6 +343,46 @@ pub fn write_gif(path: &Path, frames: &[Image], delay_cs: u16) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The MP4 beside the GIF where ffmpeg exists (the developer's check; CI need not have it):
+    /// odd frame sizes padded to even, every frame in the file (ffprobe counts them).
+    #[test]
+    fn mp4_beside_the_gif_when_ffmpeg_is_on_path() {
+        if !ffmpeg_available() {
+            eprintln!("skipped: no ffmpeg on PATH");
+            return;
+        }
+        let dir = std::env::temp_dir().join(format!("nerf-mp4-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut w = FrameWriter::new(&dir, None).unwrap();
+        let (width, height) = (33, 17);
+        for k in 0..5 {
+            let rgb = (0..3 * width * height)
+                .map(|i| ((i + 7 * k) % 11) as f32 / 10.0)
+                .collect();
+            let ones = vec![1.0; (width * height) as usize];
+            w.push(k as usize, width, height, rgb, &ones, &ones).unwrap();
+        }
+        let said = w.finish("path.gif").unwrap();
+        assert!(said.contains("H.264"), "{said}");
+        let mp4 = dir.join("path.mp4");
+        assert!(dir.join("path.gif").exists() && mp4.exists());
+        let probe = std::process::Command::new("ffprobe")
+            .args(["-v", "error", "-count_frames", "-select_streams", "v:0"])
+            .args([
+                "-show_entries",
+                "stream=codec_name,nb_read_frames,width,height",
+                "-of",
+                "csv=p=0",
+            ])
+            .arg(&mp4)
+            .output();
+        if let Ok(out) = probe {
+            let text = String::from_utf8_lossy(&out.stdout);
+            assert_eq!(text.trim(), "h264,34,18,5", "ffprobe: {text}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn trajectory_passes_through_every_training_camera_in_order() {

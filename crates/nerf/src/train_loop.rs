@@ -41,6 +41,11 @@ pub trait Trainable {
     fn rollback(&mut self) -> Result<()>;
     /// Mean PSNR over a few held-out views.
     fn quick_eval(&mut self) -> Result<f64>;
+    /// The learning rate of the step just taken (logged).
+    fn lr(&self) -> f64 {
+        let cfg = self.config();
+        cfg.lr_at(cfg.progress(self.step(), self.elapsed()))
+    }
     /// Extra state for the periodic log line (e.g. how much of the occupancy grid is occupied).
     fn status(&self) -> String {
         String::new()
@@ -64,6 +69,7 @@ pub fn train(t: &mut impl Trainable, header: &str, show_progress: bool) -> Resul
         f64::INFINITY
     };
     let mut last_print = Instant::now();
+    let mut saved_at = None;
     while t.step() < cfg.steps && cfg.time_budget.is_none_or(|b| t.elapsed() < b) {
         let t0 = Instant::now();
         let stats = t.train_step()?;
@@ -96,7 +102,7 @@ pub fn train(t: &mut impl Trainable, header: &str, show_progress: bool) -> Resul
         let (step, elapsed) = (t.step(), t.elapsed());
         let rays_per_sec = stats.rays as f64 / dt.max(1e-9);
         let spr = stats.samples as f64 / stats.rays.max(1) as f64;
-        let lr = cfg.lr_at(cfg.progress(step, elapsed));
+        let lr = t.lr();
         progress.update(
             step,
             elapsed,
@@ -133,13 +139,17 @@ pub fn train(t: &mut impl Trainable, header: &str, show_progress: bool) -> Resul
         log.append(&record)?;
         if step.is_multiple_of(cfg.checkpoint_every.max(1)) {
             t.save()?;
+            saved_at = Some(step);
         }
     }
     progress.finish();
     if nerf_core::profile::enabled() {
         eprint!("{}", nerf_core::profile::report());
     }
-    t.save()?;
+    if saved_at != Some(t.step()) {
+        // (Saving the same state again would make it the previous checkpoint as well.)
+        t.save()?;
+    }
     Ok(crate::plot::training_curve(
         &run_dir.join(METRICS),
         &run_dir.join("psnr.png"),

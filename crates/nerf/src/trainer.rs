@@ -12,7 +12,7 @@ use nerf_core::render::Background;
 use nerf_data::{Dataset, RayBatch};
 use rand::{Rng, SeedableRng, rngs::StdRng};
 
-use crate::checkpoint::{Sections, TrainState};
+use crate::checkpoint::{Sections, TrainState, has_checkpoint};
 use crate::config::{Preset, TrainConfig};
 use crate::error::{ModelError, Result, read_scalar};
 use crate::field::{BaseField, FieldModule};
@@ -111,8 +111,7 @@ impl<F: FieldModule> Trainer<F> {
         update: impl FnOnce(&mut TrainConfig),
         build: FieldBuilder<F>,
     ) -> Result<Self> {
-        let path = run_dir.join(CHECKPOINT);
-        let sections = Sections::read(&path)?;
+        let (sections, path) = Sections::read_for_resume(run_dir)?;
         let state: TrainState = sections.json("state", &path)?;
         let mut cfg = state.config.clone();
         update(&mut cfg);
@@ -153,7 +152,7 @@ impl<F: FieldModule> Trainer<F> {
             .to_bytes()
             .map_err(|e| ModelError::checkpoint(&path, format!("cannot save optimiser: {e}")))?;
         s.push("optim", optim);
-        s.write(&path)
+        s.write_keeping_previous(&path)
     }
 
     fn seed_for(&self, step: usize) -> u64 {
@@ -259,9 +258,8 @@ impl<F: FieldModule> Trainer<F> {
 
     /// Restores the last checkpoint (or the initial state when there is none).
     pub fn rollback(&mut self) -> Result<()> {
-        let path = self.run_dir.join(CHECKPOINT);
-        if path.exists() {
-            let sections = Sections::read(&path)?;
+        if has_checkpoint(&self.run_dir) {
+            let (sections, path) = Sections::read_for_resume(&self.run_dir)?;
             self.restore(&sections, &path)
         } else {
             self.model =

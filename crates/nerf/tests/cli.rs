@@ -112,6 +112,106 @@ fn train_eval_and_render_cameras_agree() {
         (independent - evaluated).abs() < 0.05,
         "{independent} vs {evaluated}"
     );
+
+    // Geometry out of the same run: a mesh and a point cloud, read back by a generic PLY
+    // reader, and scored against the generator's true surfaces.
+    let mesh = dir.join("mesh.ply");
+    let out = run(nerf()
+        .args(["export", "mesh"])
+        .arg(&run_dir)
+        .args(["--resolution", "40", "--threshold", "2", "--out"])
+        .arg(&mesh));
+    let text = String::from_utf8_lossy(&out.stdout);
+    let (vertices, faces) = support::check_ply(&mesh, [[-5.0; 3], [5.0; 3]]);
+    assert!(
+        vertices > 100 && faces > 100,
+        "{vertices} vertices, {faces} faces"
+    );
+    assert!(
+        text.contains(&format!("{vertices} vertices, {faces} triangles")),
+        "{text}"
+    );
+    assert!(
+        text.contains("to the true surfaces") && text.contains("Chamfer"),
+        "{text}"
+    );
+    let points = dir.join("points.ply");
+    run(nerf()
+        .args(["export", "points"])
+        .arg(&run_dir)
+        .args(["--stride", "4", "--out"])
+        .arg(&points));
+    let (n, faces) = support::check_ply(&points, [[-5.0; 3], [5.0; 3]]);
+    assert!(n > 100 && faces == 0, "{n} points");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn viewer_serves_the_page_and_frames_and_refuses_bad_requests() {
+    let dir = temp("view");
+    let data = scene(&dir);
+    let run_dir = dir.join("run");
+    run(nerf()
+        .arg("train")
+        .arg(&data)
+        .arg("--out")
+        .arg(&run_dir)
+        .args(["--steps", "20", "--no-render"]));
+    support::check_viewer(
+        env!("CARGO_BIN_EXE_nerf"),
+        &run_dir,
+        &["rgb", "depth", "opacity"],
+        false,
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn damaged_checkpoint_is_refused_and_resume_falls_back() {
+    let dir = temp("damaged");
+    let data = scene(&dir);
+    let run_dir = dir.join("run");
+    let train = |steps: &str| {
+        let mut cmd = nerf();
+        cmd.arg("train").arg(&data).arg("--out").arg(&run_dir).args([
+            "--steps",
+            steps,
+            "--checkpoint-every",
+            "20",
+            "--no-render",
+        ]);
+        cmd
+    };
+    run(&mut train("60"));
+    let (last, prev) = (
+        run_dir.join("checkpoint.bin"),
+        run_dir.join("checkpoint.prev.bin"),
+    );
+    assert!(last.exists() && prev.exists());
+
+    // One flipped bit in the middle of the last checkpoint: eval refuses it, naming the file.
+    let mut bytes = std::fs::read(&last).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x04;
+    std::fs::write(&last, &bytes).unwrap();
+    let out = nerf().arg("eval").arg(&run_dir).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "a damaged checkpoint was loaded");
+    assert!(
+        stderr.contains("checkpoint.bin") && stderr.contains("checksum mismatch"),
+        "{stderr}"
+    );
+
+    // Resume falls back to the previous checkpoint (step 40), says so, and trains on.
+    let out = run(train("80").arg("--resume"));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("resuming from the previous checkpoint") && stderr.contains("at step 40"),
+        "{stderr}"
+    );
+    let metrics = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap();
+    assert!(metrics.contains("\"step\":80"), "training went on to step 80");
+    run(nerf().arg("eval").arg(&run_dir));
     std::fs::remove_dir_all(dir).unwrap();
 }
 

@@ -39,6 +39,10 @@ pub struct LossWeights {
     /// frames alone, takes it over and shows as fog off the camera path).
     #[serde(default = "default_still_dynamic")]
     pub still_dynamic: f64,
+    /// Dynamic share of the combined render on every ray, masks or not: where the static field
+    /// explains a pixel as well, the pixel goes to it; movers pay and stay dynamic.
+    #[serde(default)]
+    pub dynamic_share: f64,
 }
 
 fn default_still_dynamic() -> f64 {
@@ -67,6 +71,7 @@ impl Default for LossWeights {
             sparsity: default_sparsity(),
             hidden: default_hidden(),
             still_dynamic: default_still_dynamic(),
+            dynamic_share: 0.0,
         }
     }
 }
@@ -173,6 +178,11 @@ pub struct NsffConfig {
     /// from before it read 0 (their runs go on as they started).
     #[serde(default)]
     pub static_warm_up: f64,
+    /// Whether the learning rate's decay, like the decaying weights', counts from the end of the
+    /// static warm-up (the rate stays at `lr` during it). Without it the dynamic field starts at
+    /// the rate of 30 % into the run. Checkpoints from before it read false.
+    #[serde(default)]
+    pub lr_decay_after_warm_up: bool,
     /// Random points per step for the dynamic sparsity term (`weights.sparsity`).
     #[serde(default = "default_sparsity_points")]
     pub sparsity_points: usize,
@@ -262,6 +272,7 @@ impl NsffConfig {
             space_time_share: default_space_time_share(),
             dynamic_photo_masked: false,
             static_warm_up: 0.3,
+            lr_decay_after_warm_up: true,
             sparsity_points: default_sparsity_points(),
         }
     }

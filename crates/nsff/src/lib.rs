@@ -7,6 +7,7 @@
 pub mod checkpoint;
 pub mod config;
 pub mod eval;
+pub mod export;
 pub mod field;
 pub mod geometry;
 pub mod losses;
@@ -14,3 +15,4 @@ pub mod model;
 pub mod render;
 pub mod trainer;
 pub mod video;
+pub mod view;

@@ -4,14 +4,19 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use nerf::cli::CommonTrainArgs;
+use nerf::checkpoint::has_checkpoint;
+use nerf::cli::{CommonTrainArgs, MeshArgs, PointsArgs, ViewArgs};
 use nerf::config::apply_overrides;
 use nerf::error::{ModelError, Result};
+use nerf::export::{
+    PointCloud, culling_cameras, require_bounded, run_mesh_export, run_points_export, strided_pixels,
+};
 use nerf::render::FrameWriter;
 use nerf_data::error::DataError;
 use nerf_data::{Camera, Dataset, Image, LoadOptions};
 use nsff::config::{DynamicMode, NsffConfig, TimeInterp};
 use nsff::eval::{evaluate_with_depth, render_at};
+use nsff::export::SpaceTimeVolume;
 use nsff::model::NsffModel;
 use nsff::trainer::{CHECKPOINT, NsffTrainer, load_video};
 
@@ -46,6 +51,25 @@ enum Command {
     },
     /// Render a run: the cameras of a D-NeRF transforms file, or a path (bullet time, time-lapse, space-time).
     Render(RenderArgs),
+    /// Look around a trained run in the browser: a local web viewer (drag orbits, wheel zooms).
+    View(ViewArgs),
+    /// Take geometry out of a trained run as binary PLY (MeshLab, Blender, Open3D).
+    #[command(subcommand)]
+    Export(ExportWhat),
+}
+
+#[derive(Subcommand)]
+enum ExportWhat {
+    /// A triangle mesh of the scene at one time (the combined density's level set), coloured by the fields.
+    Mesh {
+        #[command(flatten)]
+        mesh: MeshArgs,
+        /// Normalised time in [0, 1].
+        #[arg(long, default_value_t = 0.0)]
+        time: f32,
+    },
+    /// A coloured point cloud of the surfaces each training frame sees at its own time.
+    Points(PointsArgs),
 }
 
 #[derive(clap::Args)]
@@ -121,6 +145,65 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Render(args) => render(args),
+        Command::View(args) => {
+            let t = open_run(&args.run_dir, None)?;
+            let title = format!("{} (step {})", args.run_dir.display(), t.step);
+            let scene = nerf::viewer::ViewerScene::of(&t.dataset, &title);
+            let model = nsff::view::SpaceTimeView {
+                model: &t.model,
+                dataset: &t.dataset,
+                device: &t.device,
+            };
+            nerf::viewer::run(&model, &scene, &args.host, args.port)
+        }
+        Command::Export(ExportWhat::Mesh { mesh, time }) => {
+            let t = open_run(&mesh.run_dir, None)?;
+            require_bounded(&t.dataset, &mesh.run_dir)?;
+            let volume = SpaceTimeVolume {
+                model: &t.model,
+                time,
+                device: &t.device,
+            };
+            let views = culling_cameras(&t.dataset, 32, 128);
+            let render_depth = |cam: &nerf_data::Camera| {
+                let r = render_at(&t.model, &t.dataset, cam, time, &t.device)?;
+                Ok((r.depth, r.opacity))
+            };
+            run_mesh_export(
+                &volume,
+                &mesh,
+                &t.cfg.base.data,
+                time as f64,
+                &views,
+                &render_depth,
+            )?;
+            Ok(())
+        }
+        Command::Export(ExportWhat::Points(args)) => {
+            let t = open_run(&args.run_dir, None)?;
+            require_bounded(&t.dataset, &args.run_dir)?;
+            let mut cloud = PointCloud::default();
+            let bar = nerf::export::progress(true, t.frames.len() as u64, "frames");
+            for (k, &v) in t.frames.iter().enumerate() {
+                let cam = &t.dataset.views[v].camera;
+                let r = render_at(&t.model, &t.dataset, cam, t.model.times[k], &t.device)?;
+                let pixels = strided_pixels(cam, args.stride);
+                let rays = t.dataset.rays_for(cam, pixels.iter().copied());
+                let pick = |v: &[f32], c: usize| -> Vec<f32> {
+                    pixels
+                        .iter()
+                        .flat_map(|&p| v[c * p as usize..c * (p as usize + 1)].to_vec())
+                        .collect()
+                };
+                let (rgb, depth, opacity) = (pick(&r.rgb, 3), pick(&r.depth, 1), pick(&r.opacity, 1));
+                cloud.add_rendered(&rays, &rgb, &depth, &opacity, args.min_opacity);
+                bar.inc(1);
+            }
+            bar.finish_and_clear();
+            // Scored against the scene at time 0: only static surfaces are where they were then.
+            run_points_export(&cloud, &args, t.model.bounds.aabb, &t.cfg.base.data, 0.0)?;
+            Ok(())
+        }
     }
 }
 
@@ -128,7 +211,7 @@ fn train(args: TrainArgs) -> Result<()> {
     let common = &args.common;
     let run_dir = common.run_dir("nsff-");
     let mut t = if common.resume {
-        if !run_dir.join(CHECKPOINT).exists() {
+        if !has_checkpoint(&run_dir) {
             return Err(ModelError::usage(
                 &run_dir,
                 "--resume: no checkpoint.bin in the run folder",
@@ -317,7 +400,8 @@ fn render_pairs(t: &Run, pairs: &[(Camera, f32)], out: &Path, gif: &str) -> Resu
         bar.inc(1);
     }
     bar.finish_and_clear();
-    Ok(writer.finish_gif(gif)?)
+    eprintln!("{}", writer.finish(gif)?);
+    Ok(())
 }
 
 fn render_path(t: &Run, kind: PathKind, frame: usize, n: usize, out: &Path) -> Result<()> {

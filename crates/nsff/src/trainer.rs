@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use burn::tensor::{Device, Tensor};
-use nerf::checkpoint::Sections;
+use nerf::checkpoint::{Sections, has_checkpoint};
 use nerf::error::{ModelError, Result, read_scalar};
 use nerf::model::scene_bounds;
 use nerf::optimizer::Optimizer;
@@ -117,8 +117,7 @@ impl NsffTrainer {
 
     /// Resumes from `run_dir/checkpoint.bin`; `update` may change budgets.
     pub fn resume(run_dir: &Path, update: impl FnOnce(&mut NsffConfig), quiet: bool) -> Result<Self> {
-        let path = run_dir.join(CHECKPOINT);
-        let s = Sections::read(&path)?;
+        let (s, path) = Sections::read_for_resume(run_dir)?;
         let state: NsffState = s.json("state", &path)?;
         let mut cfg = state.config.clone();
         update(&mut cfg);
@@ -170,7 +169,7 @@ impl NsffTrainer {
             .to_bytes()
             .map_err(|e| ModelError::checkpoint(&path, format!("cannot save optimiser: {e}")))?;
         s.push("optim", optim);
-        s.write(&path)
+        s.write_keeping_previous(&path)
     }
 
     /// One step on a random frame. `Ok(None)` when the loss was not finite (step skipped).
@@ -200,10 +199,7 @@ impl NsffTrainer {
             self.optim.skip(&host);
             return Ok(None);
         }
-        let lr = self
-            .cfg
-            .base
-            .lr_at(self.cfg.base.progress(self.step, self.elapsed));
+        let lr = self.lr();
         self.model.fields = self.optim.step(loss, lr, self.model.fields.clone(), &host);
         self.step += 1;
         if self.model.occupancy.as_ref().is_some_and(|o| o.due(self.step)) {
@@ -247,9 +243,23 @@ impl NsffTrainer {
     /// Weight multiplier of the decaying terms (optical flow, depth) now; the budget's progress
     /// counts from the end of the static warm-up.
     fn decay(&self) -> f64 {
+        self.cfg.decay(self.step, self.after_warm_up())
+    }
+
+    /// The learning rate now.
+    fn lr(&self) -> f64 {
+        self.cfg.base.lr_at(if self.cfg.lr_decay_after_warm_up {
+            self.after_warm_up()
+        } else {
+            self.cfg.base.progress(self.step, self.elapsed)
+        })
+    }
+
+    /// The budget's progress counted from the end of the static warm-up, in [0, 1] (0 during it).
+    fn after_warm_up(&self) -> f64 {
         let progress = self.cfg.base.progress(self.step, self.elapsed);
         let w = self.cfg.static_warm_up.clamp(0.0, 0.99);
-        self.cfg.decay(self.step, ((progress - w) / (1.0 - w)).max(0.0))
+        ((progress - w) / (1.0 - w)).max(0.0)
     }
 
     /// Whether this step trains the static field alone (`static_warm_up`).
@@ -334,7 +344,7 @@ impl NsffTrainer {
 
         // Combined render, scored over the uniformly drawn rays only, as NSFF (the mined ones
         // would bias the blend).
-        let share = wts.still_dynamic > 0.0;
+        let share = wts.still_dynamic > 0.0 || wts.dynamic_share > 0.0;
         let combined = render_combined(&self.model, rays, &samples, &q, ds.background, share, dev);
         let n_u = batch.n_uniform;
         let mse_cb = losses::mse(
@@ -342,7 +352,11 @@ impl NsffTrainer {
             target.clone().slice([0..n_u, 0..3]),
         );
         let mut loss = mse_cb.clone();
-        if share {
+        if wts.dynamic_share > 0.0 {
+            let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
+            loss = loss + losses::still_dynamic_share(share, vec![1.0; n_u]) * wts.dynamic_share;
+        }
+        if wts.still_dynamic > 0.0 {
             let mask = &v.motion_masks[k];
             let still = batch.pixels[..n_u]
                 .iter()
@@ -643,9 +657,8 @@ impl NsffTrainer {
     }
 
     fn rollback(&mut self) -> Result<()> {
-        let path = self.run_dir.join(CHECKPOINT);
-        if path.exists() {
-            let s = Sections::read(&path)?;
+        if has_checkpoint(&self.run_dir) {
+            let (s, path) = Sections::read_for_resume(&self.run_dir)?;
             self.restore(&s, &path)
         } else {
             let dynamic = self.has_dynamic();
@@ -714,6 +727,9 @@ impl nerf::train_loop::Trainable for NsffTrainer {
     }
     fn save(&self) -> Result<()> {
         NsffTrainer::save(self)
+    }
+    fn lr(&self) -> f64 {
+        NsffTrainer::lr(self)
     }
     fn rollback(&mut self) -> Result<()> {
         NsffTrainer::rollback(self)

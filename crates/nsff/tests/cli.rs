@@ -99,6 +99,39 @@ fn train_eval_and_render_cameras_agree() {
         }
     }
     assert!(renders.join("cameras.gif").exists());
+
+    // Geometry at one time and the frames' surface points, read back by a generic PLY reader.
+    let mesh = dir.join("mesh.ply");
+    let out = run(nsff()
+        .args(["export", "mesh"])
+        .arg(&run_dir)
+        .args([
+            "--time",
+            "0.5",
+            "--resolution",
+            "24",
+            "--threshold",
+            "0.5",
+            "--out",
+        ])
+        .arg(&mesh));
+    let (vertices, faces) = support::check_ply(&mesh, [[-5.0; 3], [5.0; 3]]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        faces > 0 && text.contains(&format!("{vertices} vertices, {faces} triangles")),
+        "{text}"
+    );
+    let points = dir.join("points.ply");
+    run(nsff()
+        .args(["export", "points"])
+        .arg(&run_dir)
+        .args(["--stride", "2", "--min-opacity", "0.5", "--out"])
+        .arg(&points));
+    let (n, _) = support::check_ply(&points, [[-5.0; 3], [5.0; 3]]);
+    assert!(n > 0);
+    // The web viewer at any time, with the dynamic share and the scene flow.
+    let channels = ["rgb", "depth", "opacity", "dynamic", "flow"];
+    support::check_viewer(env!("CARGO_BIN_EXE_nsff"), &run_dir, &channels, true);
     std::fs::remove_dir_all(dir).unwrap();
 }
 
