@@ -781,19 +781,29 @@ mod tests {
         let dynamic = |t: &NsffTrainer| tables(t.model.fields.dynamic.as_ref().unwrap().host_params());
         let still = |t: &NsffTrainer| tables(t.model.fields.static_field.host_params());
         let (dyn0, st0) = (dynamic(&t), still(&t));
+        let (lr0, lr1) = (t.cfg.base.lr, t.cfg.base.lr_final);
         for _ in 0..2 {
             assert!(t.in_static_warm_up());
+            assert_eq!(t.lr(), lr0, "the rate decayed during the warm-up");
             t.train_step().unwrap().expect("a finite warm-up step");
         }
         assert_eq!(dynamic(&t), dyn0, "the warm-up changed the dynamic field");
         assert_ne!(still(&t), st0, "the warm-up did not train the static field");
         assert!(!t.in_static_warm_up());
+        assert_eq!(t.lr(), lr0, "the space-time phase starts at the full rate");
         t.train_step().unwrap().expect("a finite space-time step");
         assert_ne!(
             dynamic(&t),
             dyn0,
             "the space-time step did not reach the dynamic field"
         );
+        // One of the two space-time steps done: half-way through the decay.
+        let want = lr0 * (lr1 / lr0).powf(0.5);
+        assert!((t.lr() - want).abs() < 1e-9 * lr0, "lr {} vs {want}", t.lr());
+        // The schedule of checkpoints from before: one decay over the whole budget (3 of 4 steps).
+        t.cfg.lr_decay_after_warm_up = false;
+        let old = lr0 * (lr1 / lr0).powf(0.75);
+        assert!((t.lr() - old).abs() < 1e-9 * lr0, "lr {} vs {old}", t.lr());
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
