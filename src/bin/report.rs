@@ -47,9 +47,16 @@ enum Cmd {
         /// format (NSFF's skip path).
         #[arg(long, value_delimiter = ',', default_value = "60")]
         skip_budgets: Vec<f64>,
-        /// Which suites to run.
+        /// Which suites to run (`all` leaves out `dnerf`, which takes about an hour).
         #[arg(long, value_enum, default_value = "all")]
         suite: Suite,
+        /// The D-NeRF benchmark folder (dnerf suite: every scene in it with a
+        /// transforms_train.json, trained by `nsff --downscale 2`).
+        #[arg(long, default_value = "../shared/data/dnerf")]
+        dnerf: PathBuf,
+        /// Time budgets (seconds) for the dnerf suite.
+        #[arg(long, value_delimiter = ',', default_value = "60,120,300,600")]
+        dnerf_budgets: Vec<f64>,
     },
     /// Compositing error against samples per ray for each sampler.
     Quadrature {
@@ -64,6 +71,8 @@ enum Suite {
     Static,
     Dynamic,
     Skip,
+    /// NSFF on the D-NeRF benchmark's scenes at 400×400, against the published results.
+    Dnerf,
 }
 
 fn main() -> std::process::ExitCode {
@@ -76,7 +85,15 @@ fn main() -> std::process::ExitCode {
             dynamic_budgets,
             skip_budgets,
             suite,
-        } => speed(&out, &lego, [&budgets, &dynamic_budgets, &skip_budgets], suite),
+            dnerf,
+            dnerf_budgets,
+        } => {
+            if suite == Suite::Dnerf {
+                dnerf_suite(&out, &dnerf, &dnerf_budgets)
+            } else {
+                speed(&out, &lego, [&budgets, &dynamic_budgets, &skip_budgets], suite)
+            }
+        }
         Cmd::Quadrature { out } => quadrature(&out),
     };
     match result {
@@ -132,6 +149,39 @@ struct Point {
     train_rays_per_sec: f64,
     train_samples_per_ray: f64,
     render_s_per_view: f64,
+}
+
+/// The CSV columns after the budget: steps, test PSNR and SSIM, eval samples per ray, train
+/// rays per second and samples per ray, render seconds per view.
+const POINT_COLUMNS: &str =
+    "steps,test_psnr,test_ssim,eval_samples_per_ray,train_rays_per_s,train_samples_per_ray,render_s_per_view";
+
+impl Point {
+    fn csv(&self) -> String {
+        format!(
+            "{},{:.3},{:.4},{:.2},{:.0},{:.2},{:.3}",
+            self.steps,
+            self.psnr,
+            self.ssim,
+            self.eval_samples_per_ray,
+            self.train_rays_per_sec,
+            self.train_samples_per_ray,
+            self.render_s_per_view
+        )
+    }
+}
+
+/// Writes a line chart with a logarithmic x axis to `path`.
+fn save_chart(title: &str, (x_label, y_label): (&str, &str), series: Vec<Series>, path: &Path) -> Res<()> {
+    Chart {
+        title: title.into(),
+        x_label: x_label.into(),
+        y_label: y_label.into(),
+        series,
+        log_x: true,
+    }
+    .save(path)
+    .map_err(|e| e.to_string())
 }
 
 fn train_and_score(cfg: &Config, data: &Path, budget: f64, run_dir: &Path) -> Res<Point> {
@@ -244,9 +294,7 @@ fn speed(
         }
     }
     let csv_path = out.join("speed.csv");
-    let mut csv = String::from(
-        "suite,config,budget_s,steps,test_psnr,test_ssim,eval_samples_per_ray,train_rays_per_s,train_samples_per_ray,render_s_per_view\n",
-    );
+    let mut csv = format!("suite,config,budget_s,{POINT_COLUMNS}\n");
     let mut curves: Vec<(&str, Series)> = Vec::new();
     for (k, (cfg, data, budgets)) in configs.iter().enumerate() {
         let mut series = Series {
@@ -268,16 +316,10 @@ fn speed(
                 p.psnr, p.steps, p.eval_samples_per_ray, p.train_rays_per_sec
             );
             csv.push_str(&format!(
-                "{},{},{b},{},{:.3},{:.4},{:.2},{:.0},{:.2},{:.3}\n",
+                "{},{},{b},{}\n",
                 cfg.suite,
                 cfg.name.replace(',', ";"),
-                p.steps,
-                p.psnr,
-                p.ssim,
-                p.eval_samples_per_ray,
-                p.train_rays_per_sec,
-                p.train_samples_per_ray,
-                p.render_s_per_view
+                p.csv()
             ));
             series.points.push((b, p.psnr));
             // Written after every point, so an interrupted report keeps what it measured.
@@ -304,18 +346,116 @@ fn speed(
         if series.is_empty() {
             continue;
         }
-        Chart {
-            title: title.into(),
-            x_label: "training time budget (s)".into(),
-            y_label: "test PSNR (dB)".into(),
+        save_chart(
+            title,
+            ("training time budget (s)", "test PSNR (dB)"),
             series,
-            log_x: true,
-        }
-        .save(&out.join(format!("speed_{suite}.png")))
-        .map_err(|e| e.to_string())?;
+            &out.join(format!("speed_{suite}.png")),
+        )?;
     }
     println!("{csv}");
     println!("wrote {}", csv_path.display());
+    Ok(())
+}
+
+/// Published test PSNR on the three shared D-NeRF scenes (bouncingballs, jumpingjacks,
+/// standup), averaged over them; method.md §8.
+const DNERF_PUBLISHED: [(&str, [f64; 3]); 4] = [
+    ("D-NeRF paper (about 20 h, GPU)", [32.80, 32.80, 32.79]),
+    ("K-Planes (nerfacc re-run, 70 min, GPU)", [39.10, 31.11, 32.51]),
+    ("TiNeuVox (official, 14 min, GPU)", [39.37, 32.92, 33.59]),
+    ("T-NeRF + nerfacc (1 h, GPU)", [39.49, 32.73, 35.90]),
+];
+
+/// The dnerf suite: `nsff` on every scene of `root` for each budget, `dnerf.csv` and a plot of
+/// test PSNR against training time with the published results as horizontal lines.
+fn dnerf_suite(out: &Path, root: &Path, budgets: &[f64]) -> Res<()> {
+    std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let mut scenes: Vec<PathBuf> = std::fs::read_dir(root)
+        .map_err(|e| format!("{}: {e}", root.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join("transforms_train.json").exists())
+        .collect();
+    scenes.sort();
+    if scenes.is_empty() {
+        return Err(format!(
+            "{}: no scene folders with transforms_train.json",
+            root.display()
+        ));
+    }
+    let csv_path = out.join("dnerf.csv");
+    let mut csv = format!("scene,budget_s,{POINT_COLUMNS}\n");
+    let mut series = Vec::new();
+    let mut by_budget = vec![Vec::new(); budgets.len()];
+    for (k, scene) in scenes.iter().enumerate() {
+        let name = scene
+            .file_name()
+            .map_or("scene".into(), |n| n.to_string_lossy().into_owned());
+        let cfg = Config {
+            suite: "dnerf",
+            name: "nsff",
+            binary: "nsff",
+            args: vec!["--downscale", "2"],
+        };
+        let mut points = Vec::new();
+        for (i, &b) in budgets.iter().enumerate() {
+            eprintln!("dnerf / {name} / {b} s ...");
+            let p = train_and_score(
+                &cfg,
+                scene,
+                b,
+                &out.join("runs").join(format!("dnerf_{name}_{b}")),
+            )?;
+            eprintln!(
+                "  test PSNR {:.2} dB, SSIM {:.4}, {} steps",
+                p.psnr, p.ssim, p.steps
+            );
+            csv.push_str(&format!("{name},{b},{}\n", p.csv()));
+            nerf_data::image::write_atomic(&csv_path, csv.as_bytes()).map_err(|e| e.to_string())?;
+            points.push((b, p.psnr));
+            by_budget[i].push(p.psnr);
+        }
+        series.push(Series {
+            name: format!("nsff, {name}"),
+            points,
+            color: PALETTE[k % PALETTE.len()],
+        });
+    }
+    series.push(Series {
+        name: "nsff, mean".into(),
+        points: budgets
+            .iter()
+            .zip(&by_budget)
+            .map(|(&b, v)| (b, v.iter().sum::<f64>() / v.len() as f64))
+            .collect(),
+        color: [0, 0, 0],
+    });
+    let (lo, hi) = budgets
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(lo, hi), &b| (lo.min(b), hi.max(b)));
+    for (k, (label, psnr)) in DNERF_PUBLISHED.iter().enumerate() {
+        let mean = psnr.iter().sum::<f64>() / 3.0;
+        series.push(Series {
+            name: format!("{label}: {mean:.2}"),
+            points: vec![(lo, mean), (hi, mean)],
+            color: PALETTE[(scenes.len() + k) % PALETTE.len()],
+        });
+    }
+    save_chart(
+        "D-NeRF scenes at 400x400: test PSNR against training time (2 CPU cores)",
+        (
+            "training time budget (s)",
+            "test PSNR (dB); published: mean over the same three scenes",
+        ),
+        series,
+        &out.join("dnerf.png"),
+    )?;
+    println!("{csv}");
+    println!(
+        "wrote {} and {}",
+        csv_path.display(),
+        out.join("dnerf.png").display()
+    );
     Ok(())
 }
 
@@ -442,15 +582,12 @@ fn quadrature(out: &Path) -> Res<()> {
     }
     let path = out.join("quadrature.csv");
     nerf_data::image::write_atomic(&path, csv.as_bytes()).map_err(|e| e.to_string())?;
-    Chart {
-        title: "Compositing error against samples per ray (slab, analytic reference)".into(),
-        x_label: "samples per ray".into(),
-        y_label: "log10 RMS colour error".into(),
+    save_chart(
+        "Compositing error against samples per ray (slab, analytic reference)",
+        ("samples per ray", "log10 RMS colour error"),
         series,
-        log_x: true,
-    }
-    .save(&out.join("quadrature.png"))
-    .map_err(|e| e.to_string())?;
+        &out.join("quadrature.png"),
+    )?;
     println!("{csv}");
     println!("wrote {}", path.display());
     Ok(())

@@ -48,3 +48,12 @@ pub fn report() -> String {
         })
         .collect()
 }
+
+/// Peak resident memory of this process so far, in bytes (`VmHWM` in `/proc/self/status`;
+/// `None` where that file does not exist).
+pub fn peak_memory_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}

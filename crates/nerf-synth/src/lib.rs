@@ -60,19 +60,29 @@ pub enum Preset {
     /// wide arc, forward motion, hand-held), the frame count and the resolution
     /// ([`Variation`]).
     Family,
+    /// [`Preset::Dynamic`]'s scene seen the D-NeRF benchmark's way: every frame from a random
+    /// viewpoint on the upper hemisphere (a jumping camera), held-out views likewise at random
+    /// times. No optical flow is written (neighbouring frames are unrelated views).
+    Jumping,
 }
 
 impl Preset {
-    pub const ALL: [Preset; 4] = [
+    pub const ALL: [Preset; 5] = [
         Preset::Static,
         Preset::Dynamic,
         Preset::StaticVideo,
         Preset::Family,
+        Preset::Jumping,
     ];
 
     /// Video presets have one camera per time step, `time` in the JSON and optical flow.
     pub fn is_video(self) -> bool {
         matches!(self, Preset::Dynamic | Preset::StaticVideo | Preset::Family)
+    }
+
+    /// Presets whose frames carry a `time` (the videos and the jumping camera).
+    pub fn has_time(self) -> bool {
+        self.is_video() || self == Preset::Jumping
     }
 
     pub fn as_str(self) -> &'static str {
@@ -81,6 +91,7 @@ impl Preset {
             Preset::Dynamic => "dynamic",
             Preset::StaticVideo => "static_video",
             Preset::Family => "family",
+            Preset::Jumping => "jumping",
         }
     }
 }
@@ -101,7 +112,7 @@ impl FromStr for Preset {
             .into_iter()
             .find(|p| p.as_str() == norm)
             .ok_or_else(|| {
-                format!("unknown synthetic preset '{s}' (expected static, dynamic, static_video or family)")
+                format!("unknown synthetic preset '{s}' (expected static, dynamic, static_video, family or jumping)")
             })
     }
 }
@@ -126,11 +137,13 @@ pub struct SynthConfig {
 
 impl SynthConfig {
     /// Defaults per preset: static 100×100 with 100 train and 20 test views; video presets
-    /// 128×96 with 24 frames and 8 test views. Seed 0.
+    /// 128×96 with 24 frames and 8 test views; jumping 100×100 with 60 frames and 10 test views.
+    /// Seed 0.
     pub fn new(preset: Preset) -> Self {
         let (width, height, frames, test_views) = match preset {
             Preset::Static => (100, 100, 100, 20),
             Preset::Dynamic | Preset::StaticVideo | Preset::Family => (128, 96, 24, 8),
+            Preset::Jumping => (100, 100, 60, 10),
         };
         SynthConfig {
             preset,
@@ -182,7 +195,7 @@ impl SynthConfig {
                 self.width, self.height
             ));
         }
-        let min_frames = if self.preset.is_video() { 2 } else { 1 };
+        let min_frames = if self.preset.has_time() { 2 } else { 1 };
         if self.frames < min_frames || self.frames > MAX_VIEWS {
             return Err(format!(
                 "{} frames requested; the {} preset needs between {min_frames} and {MAX_VIEWS}",

@@ -116,6 +116,24 @@ pub(super) fn build(cfg: &SynthConfig) -> Scene {
             scene.views = video_views(&path, cfg.frames, cfg.test_views, &mut shake);
         }
         Preset::Family => super::family::build(cfg, &mut scene),
+        Preset::Jumping => {
+            scene.objects = video_layout(cfg.seed, true).0;
+            let mut train = Rng::new(cfg.seed, STREAM_TRAIN);
+            let mut test = Rng::new(cfg.seed, STREAM_TEST);
+            let (dn, dt) = (digits(cfg.frames), digits(cfg.test_views));
+            let last = cfg.frames.saturating_sub(1).max(1) as f64;
+            scene.views.extend((0..cfg.frames).map(|k| SynthView {
+                time: q(k as f64 / last),
+                ..orbit_view(&mut train, Split::Train, name(k, dn))
+            }));
+            scene.views.extend((0..cfg.test_views).map(|k| {
+                let view = orbit_view(&mut test, Split::Test, name(k, dt));
+                SynthView {
+                    time: q(test.unit()),
+                    ..view
+                }
+            }));
+        }
     }
     scene
 }

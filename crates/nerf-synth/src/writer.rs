@@ -226,7 +226,7 @@ impl Scene {
                 let m = self.camera(v).pose.to_c2w(AxisConvention::OpenGl);
                 FrameJson {
                     file_path: format!("./{}/{}", v.split.as_str(), v.name),
-                    time: self.preset.is_video().then_some(v.time),
+                    time: self.preset.has_time().then_some(v.time),
                     transform_matrix: [m[0], m[1], m[2], [0.0, 0.0, 0.0, 1.0]],
                     fl_x: k.fx,
                     fl_y: k.fy,

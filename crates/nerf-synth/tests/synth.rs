@@ -554,7 +554,7 @@ fn scenes_fit_the_blender_bounds() {
             let extra = scene.objects.iter().filter(|o| o.name != "ground").count();
             match preset {
                 Preset::Static => assert!((3..=5).contains(&extra), "{extra} objects"),
-                Preset::Family => assert!(scene.has_motion()),
+                Preset::Family | Preset::Jumping => assert!(scene.has_motion()),
                 _ => assert!((2..=3).contains(&extra), "{extra} objects besides the ground"),
             }
             for o in &scene.objects {

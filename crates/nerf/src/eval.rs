@@ -40,9 +40,15 @@ pub struct EvalResult {
     pub groups: Option<Vec<GroupStats>>,
 }
 
-/// Up to three test views spread over the split (cheap periodic evaluation during training).
+/// Up to three held-out views spread over the validation split, or over the test split when
+/// there is no validation split (cheap periodic evaluation during training; the test split stays
+/// for the final score, as the Blender and D-NeRF protocols have it).
 pub fn quick_views(dataset: &Dataset) -> Vec<usize> {
-    let t = &dataset.test;
+    let t = if dataset.val.is_empty() {
+        &dataset.test
+    } else {
+        &dataset.val
+    };
     match t.len() {
         0..=3 => t.clone(),
         n => vec![t[0], t[n / 2], t[n - 1]],

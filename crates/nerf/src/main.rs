@@ -63,7 +63,8 @@ enum Command {
     Synth {
         /// Output folder.
         out: PathBuf,
-        /// static, dynamic, static_video or family (a seed draws one of a family of videos).
+        /// static, dynamic, static_video, family (a seed draws one of a family of videos) or
+        /// jumping (the dynamic scene seen D-NeRF-style, from a random viewpoint every frame).
         #[arg(long, default_value = "static")]
         preset: nerf_synth::Preset,
         #[arg(long, default_value_t = 0)]

@@ -146,6 +146,12 @@ pub fn train(t: &mut impl Trainable, header: &str, show_progress: bool) -> Resul
     if nerf_core::profile::enabled() {
         eprint!("{}", nerf_core::profile::report());
     }
+    if let Some(peak) = nerf_core::profile::peak_memory_bytes() {
+        eprintln!(
+            "peak memory {:.2} GiB (resident)",
+            peak as f64 / (1u64 << 30) as f64
+        );
+    }
     if saved_at != Some(t.step()) {
         // (Saving the same state again would make it the previous checkpoint as well.)
         t.save()?;

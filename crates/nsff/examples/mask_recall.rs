@@ -67,7 +67,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "{} | {} ({:.2} %) | {:.1} % | {:.1} % | {:.0} / {:.0} / {:.0} % | {:.0} / {:.0} / {:.0} %",
             dir.display(),
             video.has_motion,
-            100.0 * video.moving_fraction,
+            100.0 * video.moving_fraction.unwrap_or(f32::NAN),
             pct(truth, total),
             pct(masked[0], total),
             pct(hit[0], truth),

@@ -19,7 +19,8 @@ pub struct NsffState {
     pub elapsed: f64,
     /// Whether the model has a dynamic field (decided once, from the video's motion).
     pub dynamic: bool,
-    pub moving_fraction: f32,
+    /// Share of flow pixels with independent motion; `None` for a jumping camera (no flow).
+    pub moving_fraction: Option<f32>,
     /// Rays per step (adapted to keep the sample count near the static pipeline's target).
     #[serde(default)]
     pub n_rays: usize,

@@ -302,6 +302,20 @@ impl NsffConfig {
     }
 
     /// Weight multiplier of the decaying terms at `step` and training `progress` in [0, 1].
+    /// Settings for a jumping camera ([`crate::capture`]), after [`NsffConfig::adapt_to`]. Each
+    /// time is seen from one viewpoint only, so the space-time grid's coarse levels share their
+    /// features across many frames (their time resolution follows their spatial resolution) and
+    /// only the finest levels resolve single frames (BENCHMARKS.md §8: better on all three
+    /// generated jumping scenes of the tuning set). Renders between frames query the field
+    /// directly: splatting follows a scene flow that nothing trains here. Returns whether it
+    /// had to switch `time_interp`.
+    pub fn adapt_to_jumping_camera(&mut self) -> bool {
+        self.dynamic_grid.time_follows_space = true;
+        let splat = self.time_interp == TimeInterp::Splat;
+        self.time_interp = TimeInterp::Direct;
+        splat
+    }
+
     pub fn decay(&self, step: usize, progress: f64) -> f64 {
         let by_steps = step / self.decay_steps.max(1);
         let by_progress = (progress / self.decay_fraction.max(1e-9)).floor() as usize;

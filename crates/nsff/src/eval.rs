@@ -6,8 +6,8 @@ use burn::module::Module;
 use burn::tensor::Device;
 use nerf::error::{Result, read_back};
 use nerf::eval::{EvalResult, score_views};
-use nerf_data::Dataset;
 use nerf_data::math::{dot, norm, normalize, sub};
+use nerf_data::{Dataset, Rays};
 
 use crate::config::TimeInterp;
 use crate::field::FLOW_NEXT;
@@ -52,10 +52,22 @@ pub fn render_at(
     } else {
         time
     };
+    render_rays_direct(model, &rays, time, dataset.background, device)
+}
+
+/// Renders `rays` (any subset of a camera's pixels) at normalised `time`, querying the
+/// space-time field at that time, in chunks of 4096 rays.
+pub fn render_rays_direct(
+    model: &NsffModel,
+    rays: &Rays,
+    time: f32,
+    background: Option<[f32; 3]>,
+    device: &Device,
+) -> Result<HostRender> {
     let mut out = HostRender::default();
     for start in (0..rays.len()).step_by(4096) {
         let part = rays.slice(start..(start + 4096).min(rays.len()));
-        let r = render_direct(model, &part, time, dataset.background, device)?;
+        let r = render_direct(model, &part, time, background, device)?;
         out.rgb.extend(r.rgb);
         out.depth.extend(r.depth);
         out.opacity.extend(r.opacity);

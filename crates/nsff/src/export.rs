@@ -10,7 +10,7 @@ use nerf_core::field::{Field, FieldQuery};
 use nerf_core::readback::read_back;
 
 use crate::field::{BLEND, GATE};
-use crate::model::{NsffModel, occupancy_density, query_dynamic};
+use crate::model::{NsffModel, blended_densities, occupancy_density, query_dynamic};
 
 /// The scene at normalised time `time`.
 pub struct SpaceTimeVolume<'a> {
@@ -48,8 +48,7 @@ impl Volume for SpaceTimeVolume<'_> {
         );
         let gate = read_back(dy.extras.expect(GATE), "time gate")?;
         for i in 0..sigma_s.len() {
-            let b = blend[i] * gate[i];
-            let (ws, wd) = ((1.0 - b) * sigma_s[i].max(0.0), b * sigma_d[i].max(0.0));
+            let (ws, wd) = blended_densities(blend[i], gate[i], sigma_s[i], sigma_d[i]);
             let total = ws + wd;
             if total > 1e-6 {
                 for c in 0..3 {

@@ -4,6 +4,7 @@
 //! training loop and evaluation. `field.rs` defines the two fields, `model.rs` the model,
 //! `render.rs` space-time rendering, `losses.rs` the loss terms, `trainer.rs` the training step.
 
+pub mod capture;
 pub mod checkpoint;
 pub mod config;
 pub mod eval;

@@ -76,7 +76,8 @@ enum ExportWhat {
 struct TrainArgs {
     #[command(flatten)]
     common: CommonTrainArgs,
-    /// Model independent motion: auto (from the optical flow), on or off.
+    /// Model independent motion: auto (from the optical flow; on for a jumping camera, whose
+    /// neighbouring frames carry no usable flow), on or off.
     #[arg(long, value_enum, default_value = "auto")]
     dynamic: DynamicMode,
     /// Renders between frames: direct (query the field at that time) or splat (NSFF's
@@ -185,18 +186,17 @@ fn run(cli: Cli) -> Result<()> {
             let mut cloud = PointCloud::default();
             let bar = nerf::export::progress(true, t.frames.len() as u64, "frames");
             for (k, &v) in t.frames.iter().enumerate() {
+                // Each frame at its own time: only the strided pixels are rendered.
                 let cam = &t.dataset.views[v].camera;
-                let r = render_at(&t.model, &t.dataset, cam, t.model.times[k], &t.device)?;
-                let pixels = strided_pixels(cam, args.stride);
-                let rays = t.dataset.rays_for(cam, pixels.iter().copied());
-                let pick = |v: &[f32], c: usize| -> Vec<f32> {
-                    pixels
-                        .iter()
-                        .flat_map(|&p| v[c * p as usize..c * (p as usize + 1)].to_vec())
-                        .collect()
-                };
-                let (rgb, depth, opacity) = (pick(&r.rgb, 3), pick(&r.depth, 1), pick(&r.opacity, 1));
-                cloud.add_rendered(&rays, &rgb, &depth, &opacity, args.min_opacity);
+                let rays = t.dataset.rays_for(cam, strided_pixels(cam, args.stride));
+                let r = nsff::eval::render_rays_direct(
+                    &t.model,
+                    &rays,
+                    t.model.times[k],
+                    t.dataset.background,
+                    &t.device,
+                )?;
+                cloud.add_rendered(&rays, &r.rgb, &r.depth, &r.opacity, args.min_opacity);
                 bar.inc(1);
             }
             bar.finish_and_clear();
@@ -234,8 +234,19 @@ fn train(args: TrainArgs) -> Result<()> {
         common.apply_fresh(&mut cfg.base);
         cfg.dynamic = args.dynamic;
         cfg.time_interp = args.time_interp;
+        let start = std::time::Instant::now();
         let video = load_video(&cfg, &run_dir, false)?;
+        eprintln!(
+            "loaded and prepared {} frames in {:.1} s",
+            video.frames.len(),
+            start.elapsed().as_secs_f64()
+        );
         cfg.adapt_to(&video.dataset, video.frames.len());
+        if video.camera_path.is_jumping() && cfg.adapt_to_jumping_camera() {
+            eprintln!(
+                "note: a jumping camera trains no scene flow; rendering between frames uses --time-interp direct"
+            );
+        }
         let cfg = apply_overrides(&cfg, &common.overrides).map_err(|m| ModelError::usage(&common.data, m))?;
         NsffTrainer::new(cfg, video, &run_dir)?
     };
@@ -349,6 +360,9 @@ fn write_eval(t: &Run, save_images: bool, name: &str) -> Result<nerf::eval::Eval
         result.render_seconds,
         result.mean_ssim.unwrap_or(f64::NAN)
     );
+    if t.dataset.format == nerf_data::Format::DNerf {
+        println!("LPIPS: not computed (it needs pretrained network weights, which nsff does not download)");
+    }
     if let Some(groups) = &result.groups {
         print!("{}", nerf::diagnosis::table(groups));
     }

@@ -157,13 +157,20 @@ pub fn occupancy_density(
             let gate = read_back(d.extras.expect(GATE), "time gate")?;
             let sigma_dy = read_back(d.sigma, "dynamic density")?;
             for (((s, dd), b), g) in sigma.iter_mut().zip(sigma_dy).zip(blend).zip(gate) {
-                let b = b * g;
-                *s = (1.0 - b) * *s + b * dd;
+                let (ws, wd) = blended_densities(b, g, *s, dd);
+                *s = ws + wd;
             }
         }
         out.extend(sigma);
     }
     Ok(out)
+}
+
+/// The two fields' shares of the combined density at one point: ((1 − b)·σ_static, b·σ_dynamic)
+/// with the blend b = b_s·g (what the renderers composite; the colour is their weighted mean).
+pub fn blended_densities(b_s: f32, gate: f32, sigma_static: f32, sigma_dynamic: f32) -> (f32, f32) {
+    let b = b_s * gate;
+    ((1.0 - b) * sigma_static.max(0.0), b * sigma_dynamic.max(0.0))
 }
 
 /// The dynamic field's outputs at one normalised time for `[S, 3]` positions and unit

@@ -410,8 +410,13 @@ impl NsffTrainer {
             }
         }
 
-        // Neighbouring frames: warped renders, disocclusion weights, cycle and flow terms.
-        let n_frames = v.frames.len();
+        // Neighbouring frames: warped renders, disocclusion weights, cycle and flow terms (a
+        // jumping camera's neighbours are unrelated views: none of these).
+        let n_frames = if v.camera_path.is_jumping() {
+            0
+        } else {
+            v.frames.len()
+        };
         for (j, forward) in [
             (k + 1 < n_frames).then(|| (k + 1, true)),
             (k > 0).then(|| (k - 1, false)),
@@ -460,14 +465,18 @@ impl NsffTrainer {
                 loss = loss + l * (wts.optical_flow * decay);
             }
         }
-        loss = loss + self.scene_flow_priors(dy, x, &x_next, &x_prev, &samples);
+        if !v.camera_path.is_jumping() {
+            loss = loss + self.scene_flow_priors(dy, x, &x_next, &x_prev, &samples);
+        }
         loss = loss + losses::entropy(b_s * gate) * wts.entropy;
         if wts.sparsity > 0.0 {
             let sparse = span("nsff_sparsity", || self.sparsity(dynamic, v.times[k], rng))?;
             loss = loss + sparse * wts.sparsity;
         }
         let mut static_samples = 0;
+        // The static batch draws from outside the motion masks; a jumping camera has none.
         if self.cfg.static_batch
+            && !v.camera_path.is_jumping()
             && let Some((loss_s, _, _, n)) = self.static_batch(rng)?
         {
             loss = loss + loss_s;
@@ -641,12 +650,20 @@ impl NsffTrainer {
 
     /// Trains until a budget is reached (the static pipeline's loop).
     pub fn train(&mut self, show_progress: bool) -> Result<()> {
+        let v = &self.video;
+        let motion = match v.moving_fraction {
+            None => String::new(),
+            Some(f) => format!(
+                "; independent motion in {:.2}% of flow pixels (motion masks: {:.1}%)",
+                100.0 * f,
+                100.0 * v.mask_fraction()
+            ),
+        };
         let header = format!(
-            "{}; {} frames; independent motion in {:.2}% of flow pixels (motion masks: {:.1}%): dynamic field {}",
-            self.video.dataset.describe(),
-            self.video.frames.len(),
-            100.0 * self.video.moving_fraction,
-            100.0 * self.video.mask_fraction(),
+            "{}; {} frames; {}{motion}: dynamic field {}",
+            v.dataset.describe(),
+            v.frames.len(),
+            v.camera_path.describe(),
             if self.has_dynamic() {
                 "on"
             } else {

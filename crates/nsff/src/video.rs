@@ -6,6 +6,8 @@ use std::path::Path;
 use nerf_data::error::{DataError, Result};
 use nerf_data::{Dataset, FlowField};
 
+use crate::capture::{self, CameraPath};
+
 /// A video ready for NSFF.
 pub struct Video {
     pub dataset: Dataset,
@@ -19,8 +21,11 @@ pub struct Video {
     pub flow_bwd: Vec<Option<FlowField>>,
     /// Monocular disparity per frame, when the input had it.
     pub disparity: Vec<Option<Vec<f32>>>,
-    /// Share of flow pixels the camera motion does not explain, and the decision.
-    pub moving_fraction: f32,
+    /// Smooth video or jumping camera, from the poses.
+    pub camera_path: CameraPath,
+    /// Share of flow pixels the camera motion does not explain, and the decision (a jumping
+    /// camera has no flow: no fraction, and the decision is "moving").
+    pub moving_fraction: Option<f32>,
     pub has_motion: bool,
     /// Per frame, its motion mask (`[H*W]` row-major, true = probably moving).
     pub motion_masks: Vec<Vec<bool>>,
@@ -104,13 +109,20 @@ fn train_json(dataset: &Dataset) -> std::path::PathBuf {
     }
 }
 
-/// Prepares the video: frame order, flows (given, cached or computed), motion decision.
+/// Prepares the video: frame order, flows (given, cached or computed), motion decision. A
+/// jumping camera ([`capture::classify`]) gets neither flows nor masks.
 /// `thresholds_px`: epipolar errors above the first count as motion for the decision, above
 /// the second for the per-frame masks.
 pub fn prepare(dataset: Dataset, cache_dir: &Path, thresholds_px: (f32, f32), quiet: bool) -> Result<Video> {
     let (motion_threshold_px, mask_threshold_px) = thresholds_px;
     let (frames, times) = check_frames(&dataset)?;
     let n = frames.len();
+    let cameras: Vec<nerf_data::Camera> = frames.iter().map(|&f| dataset.views[f].camera).collect();
+    let depth = 0.5 * (dataset.depth_bounds[0] + dataset.depth_bounds[1]) as f64;
+    let camera_path = capture::classify(&cameras, depth);
+    if camera_path.is_jumping() {
+        return Ok(jumping(dataset, frames, times, camera_path));
+    }
     let given = dataset.priors.clone().unwrap_or_default();
     let pick = |v: &Vec<Option<FlowField>>| -> Vec<Option<FlowField>> {
         frames.iter().map(|&f| v.get(f).cloned().flatten()).collect()
@@ -143,7 +155,6 @@ pub fn prepare(dataset: Dataset, cache_dir: &Path, thresholds_px: (f32, f32), qu
             }
         }
     }
-    let cameras: Vec<nerf_data::Camera> = frames.iter().map(|&f| dataset.views[f].camera).collect();
     let stride = nerf_flow::motion_stride(n);
     let report = nerf_flow::independent_motion(&cameras, &flow_fwd, motion_threshold_px, stride);
     let motion_masks: Vec<Vec<bool>> =
@@ -164,7 +175,38 @@ pub fn prepare(dataset: Dataset, cache_dir: &Path, thresholds_px: (f32, f32), qu
         flow_fwd,
         flow_bwd,
         disparity,
-        moving_fraction: report.moving_fraction,
+        camera_path,
+        moving_fraction: Some(report.moving_fraction),
         has_motion: report.has_independent_motion,
     })
+}
+
+/// A jumping camera's video: no flows or motion masks (neighbouring frames are unrelated views),
+/// and the motion is assumed (the flow that could rule it out means nothing here).
+fn jumping(dataset: Dataset, frames: Vec<usize>, times: Vec<f32>, camera_path: CameraPath) -> Video {
+    let n = frames.len();
+    let disparity = frames
+        .iter()
+        .map(|&f| {
+            dataset
+                .priors
+                .as_ref()
+                .and_then(|p| p.disparity.get(f).cloned().flatten())
+        })
+        .collect();
+    let first = &dataset.views[frames[0]].image;
+    let pixels = (first.width * first.height) as usize;
+    Video {
+        motion_masks: vec![vec![false; pixels]; n],
+        moving_pixels: vec![Vec::new(); n],
+        flow_fwd: vec![None; n],
+        flow_bwd: vec![None; n],
+        disparity,
+        camera_path,
+        moving_fraction: None,
+        has_motion: true,
+        dataset,
+        frames,
+        times,
+    }
 }

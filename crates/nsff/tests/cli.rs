@@ -29,6 +29,16 @@ fn video(dir: &Path, preset: Preset, (w, h): (u32, u32), frames: usize) -> PathB
     data
 }
 
+/// `nsff train DATA --out RUN_DIR --steps STEPS --no-render`; its stderr.
+fn train_briefly(data: &Path, run_dir: &Path, steps: usize) -> String {
+    let out = run(nsff().arg("train").arg(data).arg("--out").arg(run_dir).args([
+        "--steps",
+        &steps.to_string(),
+        "--no-render",
+    ]));
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
 #[test]
 fn train_eval_and_render_cameras_agree() {
     let dir = temp("cycle");
@@ -42,6 +52,8 @@ fn train_eval_and_render_cameras_agree() {
     ]));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("dynamic field on"), "{stderr}");
+    // Six frames over the generator's 80° arc: 16° steps, still a video (flow computed).
+    assert!(stderr.contains("camera path: smooth video"), "{stderr}");
     let after_train = mean_psnr(&out);
     for f in [
         "checkpoint.bin",
@@ -143,14 +155,7 @@ fn static_video_switches_the_dynamic_field_off() {
     // a few percent of moving pixels.
     let data = video(&dir, Preset::StaticVideo, (128, 96), 24);
     let run_dir = dir.join("run");
-    let out =
-        run(nsff()
-            .arg("train")
-            .arg(&data)
-            .arg("--out")
-            .arg(&run_dir)
-            .args(["--steps", "20", "--no-render"]));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stderr = train_briefly(&data, &run_dir, 20);
     assert!(stderr.contains("dynamic field off (static scene)"), "{stderr}");
     let state = std::fs::read(run_dir.join("checkpoint.bin")).unwrap();
     let text = String::from_utf8_lossy(&state);
@@ -168,6 +173,38 @@ fn static_video_switches_the_dynamic_field_off() {
         "on",
     ]));
     assert!(String::from_utf8_lossy(&out.stderr).contains("dynamic field on"));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// The D-NeRF benchmark's kind of capture, from our generator: a random viewpoint every frame.
+/// Neighbouring frames are unrelated, so no flow is computed (no cache folder), the header says
+/// why, and the time-conditioned field still trains and is scored.
+#[test]
+fn a_jumping_camera_skips_the_flow() {
+    let dir = temp("jumping");
+    let data = dir.join("jumping");
+    let cfg = SynthConfig::new(Preset::Jumping)
+        .with_size(32, 32)
+        .with_views(12, 4);
+    nerf_synth::generate(&cfg, &data).unwrap();
+    let run_dir = dir.join("run");
+    let stderr = train_briefly(&data, &run_dir, 30);
+    assert!(stderr.contains("camera path: jumping"), "{stderr}");
+    assert!(stderr.contains("no optical flow"), "{stderr}");
+    assert!(stderr.contains("dynamic field on"), "{stderr}");
+    assert!(!stderr.contains("computing optical flow"), "{stderr}");
+    assert!(
+        !run_dir.join("flow_cache").exists(),
+        "no flow is computed or cached"
+    );
+    let state = std::fs::read(run_dir.join("checkpoint.bin")).unwrap();
+    let text = String::from_utf8_lossy(&state);
+    assert!(
+        text.contains("\"time_follows_space\": true") && text.contains("\"time_interp\": \"direct\""),
+        "a jumping camera's space-time grid shares time on its coarse levels"
+    );
+    let eval = run(nsff().arg("eval").arg(&run_dir));
+    assert!(mean_psnr(&eval).is_finite());
     std::fs::remove_dir_all(dir).unwrap();
 }
 
