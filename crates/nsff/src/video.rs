@@ -120,18 +120,18 @@ pub fn prepare(dataset: Dataset, cache_dir: &Path, thresholds_px: (f32, f32), qu
     let cameras: Vec<nerf_data::Camera> = frames.iter().map(|&f| dataset.views[f].camera).collect();
     let depth = 0.5 * (dataset.depth_bounds[0] + dataset.depth_bounds[1]) as f64;
     let camera_path = capture::classify(&cameras, depth);
-    if camera_path.is_jumping() {
-        return Ok(jumping(dataset, frames, times, camera_path));
-    }
     let given = dataset.priors.clone().unwrap_or_default();
-    let pick = |v: &Vec<Option<FlowField>>| -> Vec<Option<FlowField>> {
-        frames.iter().map(|&f| v.get(f).cloned().flatten()).collect()
-    };
-    let (mut flow_fwd, mut flow_bwd) = (pick(&given.flow_fwd), pick(&given.flow_bwd));
     let disparity: Vec<Option<Vec<f32>>> = frames
         .iter()
         .map(|&f| given.disparity.get(f).cloned().flatten())
         .collect();
+    if camera_path.is_jumping() {
+        return Ok(jumping(dataset, frames, times, disparity, camera_path));
+    }
+    let pick = |v: &Vec<Option<FlowField>>| -> Vec<Option<FlowField>> {
+        frames.iter().map(|&f| v.get(f).cloned().flatten()).collect()
+    };
+    let (mut flow_fwd, mut flow_bwd) = (pick(&given.flow_fwd), pick(&given.flow_bwd));
     let complete = (0..n).all(|k| (k + 1 == n || flow_fwd[k].is_some()) && (k == 0 || flow_bwd[k].is_some()));
     if !complete {
         let first = &dataset.views[frames[0]].image;
@@ -183,17 +183,14 @@ pub fn prepare(dataset: Dataset, cache_dir: &Path, thresholds_px: (f32, f32), qu
 
 /// A jumping camera's video: no flows or motion masks (neighbouring frames are unrelated views),
 /// and the motion is assumed (the flow that could rule it out means nothing here).
-fn jumping(dataset: Dataset, frames: Vec<usize>, times: Vec<f32>, camera_path: CameraPath) -> Video {
+fn jumping(
+    dataset: Dataset,
+    frames: Vec<usize>,
+    times: Vec<f32>,
+    disparity: Vec<Option<Vec<f32>>>,
+    camera_path: CameraPath,
+) -> Video {
     let n = frames.len();
-    let disparity = frames
-        .iter()
-        .map(|&f| {
-            dataset
-                .priors
-                .as_ref()
-                .and_then(|p| p.disparity.get(f).cloned().flatten())
-        })
-        .collect();
     let first = &dataset.views[frames[0]].image;
     let pixels = (first.width * first.height) as usize;
     Video {
