@@ -86,6 +86,18 @@ pub enum DynamicMode {
     Off,
 }
 
+/// How the dynamic field encodes space and time (fast preset).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum SpaceTimeEncoding {
+    /// One 4-D hash grid over (x, y, z, t) (`dynamic_grid`).
+    #[default]
+    Hash4d,
+    /// A 3-D hash grid times (x, t), (y, t), (z, t) planes, K-Planes' hybrid
+    /// (`nerf_core::encoding::planes`), with `dynamic_grid`'s levels, features and resolutions.
+    Planes,
+}
+
 /// How renders at times between training frames are made.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
@@ -114,6 +126,9 @@ pub struct NsffConfig {
     pub samples: usize,
     /// The dynamic field's space-time hash grid (fast preset).
     pub dynamic_grid: HashGridConfig,
+    /// Whether `dynamic_grid` is one 4-D grid or a space grid times space-time planes.
+    #[serde(default)]
+    pub dynamic_encoding: SpaceTimeEncoding,
     /// Hidden width of the dynamic field's density and colour MLPs (fast preset). Half the
     /// static field's: the moving part of a scene is small, and it keeps the dynamic field's
     /// cost per sample at about the static field's.
@@ -254,6 +269,7 @@ impl NsffConfig {
                 time_resolution: None,
                 time_follows_space: false,
             },
+            dynamic_encoding: SpaceTimeEncoding::default(),
             dynamic_width: default_dynamic_width(),
             dynamic_sh_degree: default_dynamic_sh_degree(),
             flow_scale: 0.25,

@@ -20,7 +20,7 @@ use nerf::model::base_field;
 use nerf_core::encoding::HashGrid;
 use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery};
 
-use crate::config::NsffConfig;
+use crate::config::{NsffConfig, SpaceTimeEncoding};
 
 /// Static field extra: `[S, 1]` blend weight b_s ∈ (0, 1), the dynamic share's upper bound.
 pub const BLEND: &str = "blend";
@@ -107,6 +107,7 @@ impl DynamicField {
                         .with_sh_degree(cfg.dynamic_sh_degree)
                         .with_color_layers(f.color_layers)
                         .with_extra_outputs(DYNAMIC_EXTRA)
+                        .with_time_planes(cfg.dynamic_encoding == SpaceTimeEncoding::Planes)
                         .init(device, seed.wrapping_add(1)),
                 )
             }

@@ -3,7 +3,9 @@
 //!
 //! The hash table lives on the host (see `nerf_core::encoding::hash_grid`) and is shared by
 //! clones of the module (`valid()` copies for inference see the same table). Positions are
-//! normalised to [0, 1]^3 over the field's box; a time input becomes the grid's fourth axis.
+//! normalised to [0, 1]^3 over the field's box; a time input becomes the grid's fourth axis, or,
+//! with `time_planes`, the time axis of three space-time planes that multiply a space grid
+//! (`nerf_core::encoding::planes`).
 
 use std::sync::Arc;
 
@@ -13,7 +15,7 @@ use burn::nn::{Linear, LinearConfig};
 use burn::tensor::activation::sigmoid;
 use burn::tensor::{Device, Tensor};
 use nerf_core::encoding::spherical_harmonics;
-use nerf_core::encoding::{HashGrid, HashGridConfig};
+use nerf_core::encoding::{GridEncoding, HashGrid, HashGridConfig, SpaceTimePlanes};
 use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery};
 use nerf_core::mlp::{Mlp, MlpConfig};
 
@@ -42,16 +44,19 @@ pub struct FastFieldConfig {
     /// Upper clamp of the log density (σ ≤ e^11 ≈ 6e4) so one bad step cannot overflow.
     #[config(default = 11.0)]
     pub max_log_density: f32,
+    /// For a 4-D `grid`: encode with a 3-D grid times (x, t), (y, t), (z, t) planes instead of
+    /// one 4-D hash grid.
+    #[config(default = false)]
+    pub time_planes: bool,
 }
 
 impl FastFieldConfig {
     pub fn init(&self, device: &Device, seed: u64) -> FastField {
-        let grid = HashGrid::new(self.grid.clone(), seed);
-        self.init_with_grid(device, grid)
-    }
-
-    /// A field around an existing grid (checkpoint loading).
-    pub fn init_with_grid(&self, device: &Device, grid: Arc<HashGrid>) -> FastField {
+        let encoding = if self.time_planes && self.grid.dims == 4 {
+            GridEncoding::Planes(Arc::new(SpaceTimePlanes::new(&self.grid, seed)))
+        } else {
+            GridEncoding::Hash(HashGrid::new(self.grid.clone(), seed))
+        };
         let sh = self.sh_degree * self.sh_degree;
         FastField {
             density: MlpConfig::new(self.grid.output_dim(), self.hidden, 1, self.geo_features).init(device),
@@ -59,7 +64,7 @@ impl FastFieldConfig {
                 .init(device),
             extra: (self.extra_outputs > 0)
                 .then(|| LinearConfig::new(self.geo_features, self.extra_outputs).init(device)),
-            grid,
+            encoding,
             aabb: self.aabb,
             sh_degree: self.sh_degree,
             max_log_density: self.max_log_density,
@@ -73,7 +78,7 @@ pub struct FastField {
     pub color: Mlp,
     pub extra: Option<Linear>,
     #[module(skip)]
-    pub grid: Arc<HashGrid>,
+    pub encoding: GridEncoding,
     #[module(skip)]
     pub aabb: [[f32; 3]; 2],
     pub sh_degree: usize,
@@ -92,7 +97,7 @@ impl FastField {
 
     /// Geometry features `[S, G]` for grid coordinates in [0, 1]^D.
     fn geometry(&self, normalized: Tensor<2>) -> Tensor<2> {
-        let enc = nerf_core::profile::span("fwd.hash_encode", || self.grid.encode(normalized));
+        let enc = nerf_core::profile::span("fwd.hash_encode", || self.encoding.encode(normalized));
         nerf_core::profile::span("fwd.density_mlp", || self.density.forward(enc))
     }
 
@@ -141,6 +146,6 @@ impl Field for FastField {
     }
 
     fn host_params(&self) -> Vec<Arc<HashGrid>> {
-        vec![self.grid.clone()]
+        self.encoding.grids()
     }
 }
