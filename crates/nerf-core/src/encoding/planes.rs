@@ -4,13 +4,17 @@
 //! f_l(x, y, z, t) = g_l(x, y, z) ⊙ p_l(x, t) ⊙ q_l(y, t) ⊙ r_l(z, t) at every level l.
 //!
 //! The planes start at 1, so the field starts as a static one and time enters only where the
-//! data asks for it. The space grid starts in [0.1, 0.5] (K-Planes' initialisation), not at a
-//! hash grid's ±1e-4: a plane's gradient is the other factors' product, and at ±1e-4 that is
-//! noise which Adam's normalised steps would amplify into the planes. Each plane is a dense 2-D grid ((N_l + 1) × (frames) entries), so time is
-//! resolved per frame without the collisions a 4-D hash table has at fine levels; the product
-//! keeps the whole encoding a rank-limited 4-D function, which is what lets one view per time
-//! constrain it. All four parts are [`HashGrid`]s: their fused kernels, sparse Adam steps and
+//! data asks for it. The space grid starts in [0.1, 0.5] as in K-Planes (a plane's gradient is
+//! the other factors' product); on the tuning set that made no difference against a hash
+//! grid's ±1e-4 (BENCHMARKS.md §8, variants P and Q). Each plane is a dense 2-D grid
+//! ((N_l + 1) × (time cells + 1) entries), so time is resolved per frame without the collisions
+//! a 4-D hash table has at fine levels, and the product keeps the encoding a rank-limited 4-D
+//! function. All four parts are [`HashGrid`]s: their fused kernels, sparse Adam steps and
 //! checkpoints are the hash grid's.
+//!
+//! Measured against the 4-D hash grid (BENCHMARKS.md §8): about 3 dB worse on the generated
+//! jumping scenes, 1.6 dB worse in mean on the three D-NeRF scenes. K-Planes also regularises
+//! its planes (smoothness in time, L1 towards one); this encoding has no such terms yet.
 
 use std::sync::Arc;
 
