@@ -3,8 +3,11 @@
 
 use burn::tensor::{Device, Tensor, TensorData};
 use nerf_core::encoding::SpaceTimePlanes;
-use nerf_core::encoding::hash_grid::{HashGridConfig, Level, levels};
+use nerf_core::encoding::hash_grid::{HashGridConfig, levels};
+
+mod support;
 use rand::{Rng, SeedableRng, rngs::StdRng};
+use support::encode_f64_nd;
 
 /// Fine space levels hashed, planes dense, time capped at 5 cells.
 fn config() -> HashGridConfig {
@@ -20,47 +23,12 @@ fn config() -> HashGridConfig {
     }
 }
 
-const PRIMES: [u64; 3] = [1, 2_654_435_761, 805_459_861];
-
-/// One grid's f64 encoding of a point with D coordinates, from the definition.
-fn grid_f64(levels: &[Level], features: usize, table: &[f64], x: &[f64]) -> Vec<f64> {
-    let d = x.len();
-    let mut out = Vec::new();
-    for level in levels {
-        let mut feats = vec![0.0; features];
-        for corner in 0..1usize << d {
-            let (mut w, mut idx, mut hash, mut stride) = (1.0, 0u64, 0u32, 1u64);
-            for a in 0..d {
-                let res = level.resolutions[a] as f64;
-                let p = x[a].clamp(0.0, 1.0) * res;
-                let base = p.floor().min(res - 1.0);
-                let up = (corner >> a) & 1;
-                let v = base as u64 + up as u64;
-                w *= if up == 1 { p - base } else { 1.0 - (p - base) };
-                idx += v * stride;
-                stride *= level.resolutions[a] as u64 + 1;
-                hash ^= (v * PRIMES[a]) as u32;
-            }
-            let i = if level.dense {
-                idx
-            } else {
-                hash as u64 % level.size as u64
-            };
-            for f in 0..features {
-                feats[f] += w * table[(level.offset + i as usize) * features + f];
-            }
-        }
-        out.extend(feats);
-    }
-    out
-}
-
 /// f64 planes encoding of (x, y, z, t) from the four tables (space, then the x, y, z planes).
-fn planes_f64(cfg: &HashGridConfig, tables: &[Vec<f64>], p: [f64; 4]) -> Vec<f64> {
+fn planes_f64(cfg: &HashGridConfig, tables: &[Vec<f32>], p: [f64; 4]) -> Vec<f64> {
     let (space, plane) = SpaceTimePlanes::configs(cfg);
-    let mut out = grid_f64(&levels(&space), cfg.features, &tables[0], &p[..3]);
+    let mut out = encode_f64_nd(&space, &tables[0], &p[..3]);
     for a in 0..3 {
-        let e = grid_f64(&levels(&plane), cfg.features, &tables[1 + a], &[p[a], p[3]]);
+        let e = encode_f64_nd(&plane, &tables[1 + a], &[p[a], p[3]]);
         out.iter_mut().zip(e).for_each(|(o, v)| *o *= v);
     }
     out
@@ -71,14 +39,14 @@ fn host(t: Tensor<2>) -> Vec<f32> {
 }
 
 /// Planes with non-trivial tables (a fresh encoding's planes are all ones).
-fn filled(cfg: &HashGridConfig) -> (SpaceTimePlanes, Vec<Vec<f64>>) {
+fn filled(cfg: &HashGridConfig) -> (SpaceTimePlanes, Vec<Vec<f32>>) {
     let enc = SpaceTimePlanes::new(cfg, 1);
     let mut rng = StdRng::seed_from_u64(2);
     let mut tables = Vec::new();
     for g in enc.grids() {
         let t: Vec<f32> = (0..g.num_params()).map(|_| rng.random_range(-1.0..1.0)).collect();
         g.set_table(t.clone()).unwrap();
-        tables.push(t.iter().map(|&v| v as f64).collect());
+        tables.push(t);
     }
     (enc, tables)
 }
@@ -113,7 +81,7 @@ fn forward_and_gradients_match_the_f64_definition() {
     let dx = host(x.grad(&g).unwrap());
 
     let point = |p: &[f32], k: usize| [0, 1, 2, 3].map(|a| p[4 * k + a] as f64);
-    let loss = |tabs: &[Vec<f64>], p: &[f32]| -> f64 {
+    let loss = |tabs: &[Vec<f32>], p: &[f32]| -> f64 {
         (0..n)
             .map(|k| {
                 let e = planes_f64(&cfg, tabs, point(p, k));
