@@ -27,6 +27,10 @@ pub enum Backdrop {
     /// A small floor in front of a large textured plane at the far edge of the box, with a
     /// depth gap between them.
     Distant,
+    /// `jumping_movers`: a small plate under the movers and nothing else.
+    Plate,
+    /// `jumping_movers`: the movers alone on white.
+    Nothing,
 }
 
 /// How one moving object moves.
@@ -62,6 +66,8 @@ pub enum PathKind {
     Forward,
     /// A 45-60° arc shaken per frame (eye ±1.2°, target ±0.12).
     HandHeld,
+    /// `jumping_movers`: a random viewpoint every frame (not a video).
+    Jumping,
 }
 
 /// One member of the family: what a seed drew.
@@ -163,7 +169,8 @@ pub(super) fn build(cfg: &SynthConfig, scene: &mut Scene) {
     let views = video_views(&path, cfg.frames, cfg.test_views, &mut shake);
 
     match variation.backdrop {
-        Backdrop::OpenFloor => {}
+        // The family never draws the movers preset's plate or nothing.
+        Backdrop::OpenFloor | Backdrop::Plate | Backdrop::Nothing => {}
         Backdrop::Walls => {
             objects[0].shape = Shape::Square { half_size: WALL_AT };
             let stripes = Pattern::Stripes {
@@ -214,7 +221,9 @@ pub(super) fn build(cfg: &SynthConfig, scene: &mut Scene) {
     for (k, &(motion, speed)) in variation.movers.iter().enumerate() {
         // A few hundred tries always find room for three small movers; one that does not fit
         // is left out deterministically.
-        if let Some(m) = (0..300).find_map(|_| draw_mover(&mut rng, k, motion, speed, floor_half, &movers)) {
+        if let Some(m) =
+            (0..300).find_map(|_| draw_mover(&mut rng, k, motion, speed, 1.0, floor_half, &movers))
+        {
             movers.push(m);
         }
     }
@@ -252,7 +261,8 @@ fn camera_path(rng: &mut Rng, kind: PathKind, az_mid: f64) -> CameraPath {
             bob_deg: 3.0,
             ..CameraPath::arc(az_mid, el)
         },
-        PathKind::WideArc => CameraPath {
+        // The family never draws the movers preset's jumping camera.
+        PathKind::WideArc | PathKind::Jumping => CameraPath {
             arc_deg: q(rng.range(90.0, 110.0)),
             ..CameraPath::arc(az_mid, el)
         },
@@ -269,6 +279,81 @@ fn camera_path(rng: &mut Rng, kind: PathKind, az_mid: f64) -> CameraPath {
             ..CameraPath::arc(az_mid, el)
         },
     }
+}
+
+/// How much larger than the family's the `jumping_movers` movers are, for one, two and three
+/// movers (so that several still fit side by side).
+const MOVERS_SCALE: [f64; 3] = [1.8, 1.4, 1.15];
+/// A `jumping_movers` mover keeps its bounding sphere this far inside the [-1.5, 1.5]³ box.
+const MOVERS_BOX: f64 = 1.45;
+
+/// Fills `scene` with the `jumping_movers` member of `cfg.seed`: one to three movers of the
+/// family's motions, up to [`MOVERS_SCALE`] times the family's size, over a small plate for one seed
+/// in three. The cameras are the caller's.
+pub(super) fn build_movers(cfg: &SynthConfig, scene: &mut Scene) {
+    let mut rng = Rng::new(cfg.seed, STREAM_VARIATION);
+    let backdrop = if rng.below(3) == 0 {
+        Backdrop::Plate
+    } else {
+        Backdrop::Nothing
+    };
+    let count = [1, 2, 2, 3][rng.below(4)];
+    let motions = [
+        MoverMotion::Translate,
+        MoverMotion::Spin,
+        MoverMotion::Deform,
+        MoverMotion::TranslateSpin,
+    ];
+    let drawn: Vec<(MoverMotion, Speed)> = (0..count)
+        .map(|_| {
+            let motion = motions[rng.below(4)];
+            (motion, if rng.coin() { Speed::Fast } else { Speed::Slow })
+        })
+        .collect();
+
+    let mut rng = Rng::new(cfg.seed, STREAM_LAYOUT);
+    let mut objects = Vec::new();
+    if backdrop == Backdrop::Plate {
+        let mut plate = ground(&mut rng);
+        plate.shape = Shape::Square { half_size: 0.9 };
+        objects.push(plate);
+    }
+    let inside = |o: &Object, reach: f64| {
+        (0..=20).all(|i| {
+            let c = o.to_world([0.0; 3], i as f64 / 20.0);
+            c.iter().all(|v| v.abs() + reach <= MOVERS_BOX)
+        })
+    };
+    let mut movers: Vec<(Object, f64)> = Vec::new();
+    let mut kept = Vec::new();
+    for (k, &(motion, speed)) in drawn.iter().enumerate() {
+        let fits = (0..300).find_map(|_| {
+            draw_mover(
+                &mut rng,
+                k,
+                motion,
+                speed,
+                MOVERS_SCALE[count - 1],
+                GROUND_HALF,
+                &movers,
+            )
+            .filter(|(o, reach)| inside(o, *reach))
+        });
+        if let Some(m) = fits {
+            movers.push(m);
+            kept.push((motion, speed));
+        }
+    }
+    objects.extend(movers.into_iter().map(|(o, _)| o));
+    scene.objects = objects;
+    scene.variation = Some(Variation {
+        backdrop,
+        movers: kept,
+        path: PathKind::Jumping,
+        frames: cfg.frames,
+        width: cfg.width,
+        height: cfg.height,
+    });
 }
 
 /// +x, +y, −x, −y for 0..4.
@@ -309,21 +394,26 @@ fn wall(
     }
 }
 
-/// One try at a moving object that stays over the floor, inside the layout circle and clear
-/// of the movers already placed at every time: `(object, reach)` with `reach` the radius of
-/// a sphere about its centre that holds it at all times.
+/// One try at a moving object (`scale` times the usual size) that stays over the floor, inside
+/// the layout circle and clear of the movers already placed at every time: `(object, reach)`
+/// with `reach` the radius of a sphere about its centre that holds it at all times.
 fn draw_mover(
     rng: &mut Rng,
     k: usize,
     motion: MoverMotion,
     speed: Speed,
+    scale: f64,
     floor_half: f64,
     placed: &[(Object, f64)],
 ) -> Option<(Object, f64)> {
     let fast = speed == Speed::Fast;
     let kind = [Kind::Cube, Kind::Sphere, Kind::Block][rng.below(3)];
-    let shape = random_shape(rng, kind);
-    let size = shape.shape.bounding_radius();
+    let mut shape = random_shape(rng, kind).shape;
+    if scale != 1.0 {
+        // Rounded like every stored parameter, so `scene.json` re-parses bit-identically.
+        shape = shape.map_sizes(|v| q(v * scale));
+    }
+    let size = shape.bounding_radius();
     let pulse_amp = if motion == MoverMotion::Deform {
         q(rng.range(0.25, 0.35))
     } else {
@@ -366,7 +456,7 @@ fn draw_mover(
     let texture = random_texture(rng);
     let object = Object {
         name: format!("mover_{k}"),
-        shape: shape.shape,
+        shape,
         texture,
         position: qv([start[0], start[1], GROUND_Z + lift]),
         rotation_axis: qv(rng.unit_vector()),

@@ -64,15 +64,20 @@ pub enum Preset {
     /// viewpoint on the upper hemisphere (a jumping camera), held-out views likewise at random
     /// times. No optical flow is written (neighbouring frames are unrelated views).
     Jumping,
+    /// The D-NeRF benchmark's kind of scene with [`Preset::Jumping`]'s cameras: movers alone
+    /// (one to three, larger than the family's; deforming, spinning, travelling), over a small
+    /// plate for one seed in three, on white. Almost every pixel that is not background moves.
+    JumpingMovers,
 }
 
 impl Preset {
-    pub const ALL: [Preset; 5] = [
+    pub const ALL: [Preset; 6] = [
         Preset::Static,
         Preset::Dynamic,
         Preset::StaticVideo,
         Preset::Family,
         Preset::Jumping,
+        Preset::JumpingMovers,
     ];
 
     /// Video presets have one camera per time step, `time` in the JSON and optical flow.
@@ -82,7 +87,7 @@ impl Preset {
 
     /// Presets whose frames carry a `time` (the videos and the jumping camera).
     pub fn has_time(self) -> bool {
-        self.is_video() || self == Preset::Jumping
+        self.is_video() || matches!(self, Preset::Jumping | Preset::JumpingMovers)
     }
 
     pub fn as_str(self) -> &'static str {
@@ -92,6 +97,7 @@ impl Preset {
             Preset::StaticVideo => "static_video",
             Preset::Family => "family",
             Preset::Jumping => "jumping",
+            Preset::JumpingMovers => "jumping_movers",
         }
     }
 }
@@ -112,7 +118,7 @@ impl FromStr for Preset {
             .into_iter()
             .find(|p| p.as_str() == norm)
             .ok_or_else(|| {
-                format!("unknown synthetic preset '{s}' (expected static, dynamic, static_video, family or jumping)")
+                format!("unknown synthetic preset '{s}' (expected static, dynamic, static_video, family, jumping or jumping_movers)")
             })
     }
 }
@@ -137,13 +143,14 @@ pub struct SynthConfig {
 
 impl SynthConfig {
     /// Defaults per preset: static 100×100 with 100 train and 20 test views; video presets
-    /// 128×96 with 24 frames and 8 test views; jumping 100×100 with 60 frames and 10 test views.
+    /// 128×96 with 24 frames and 8 test views; the jumping presets 100×100 with 60 frames and 10
+    /// test views.
     /// Seed 0.
     pub fn new(preset: Preset) -> Self {
         let (width, height, frames, test_views) = match preset {
             Preset::Static => (100, 100, 100, 20),
             Preset::Dynamic | Preset::StaticVideo | Preset::Family => (128, 96, 24, 8),
-            Preset::Jumping => (100, 100, 60, 10),
+            Preset::Jumping | Preset::JumpingMovers => (100, 100, 60, 10),
         };
         SynthConfig {
             preset,

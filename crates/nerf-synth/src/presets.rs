@@ -118,24 +118,37 @@ pub(super) fn build(cfg: &SynthConfig) -> Scene {
         Preset::Family => super::family::build(cfg, &mut scene),
         Preset::Jumping => {
             scene.objects = video_layout(cfg.seed, true).0;
-            let mut train = Rng::new(cfg.seed, STREAM_TRAIN);
-            let mut test = Rng::new(cfg.seed, STREAM_TEST);
-            let (dn, dt) = (digits(cfg.frames), digits(cfg.test_views));
-            let last = cfg.frames.saturating_sub(1).max(1) as f64;
-            scene.views.extend((0..cfg.frames).map(|k| SynthView {
-                time: q(k as f64 / last),
-                ..orbit_view(&mut train, Split::Train, name(k, dn))
-            }));
-            scene.views.extend((0..cfg.test_views).map(|k| {
-                let view = orbit_view(&mut test, Split::Test, name(k, dt));
-                SynthView {
-                    time: q(test.unit()),
-                    ..view
-                }
-            }));
+            scene.views = jumping_views(cfg);
+        }
+        Preset::JumpingMovers => {
+            super::family::build_movers(cfg, &mut scene);
+            scene.views = jumping_views(cfg);
         }
     }
     scene
+}
+
+/// D-NeRF's cameras: every training frame and held-out view from a random viewpoint on the
+/// upper hemisphere; frames at evenly spaced times, held-out views at random times.
+fn jumping_views(cfg: &SynthConfig) -> Vec<SynthView> {
+    let mut train = Rng::new(cfg.seed, STREAM_TRAIN);
+    let mut test = Rng::new(cfg.seed, STREAM_TEST);
+    let (dn, dt) = (digits(cfg.frames), digits(cfg.test_views));
+    let last = cfg.frames.saturating_sub(1).max(1) as f64;
+    let mut views: Vec<SynthView> = (0..cfg.frames)
+        .map(|k| SynthView {
+            time: q(k as f64 / last),
+            ..orbit_view(&mut train, Split::Train, name(k, dn))
+        })
+        .collect();
+    views.extend((0..cfg.test_views).map(|k| {
+        let view = orbit_view(&mut test, Split::Test, name(k, dt));
+        SynthView {
+            time: q(test.unit()),
+            ..view
+        }
+    }));
+    views
 }
 
 /// Zero-padded width of view numbers: 3 like `r_007`, more for long sequences.

@@ -121,6 +121,20 @@ impl Shape {
     }
 
     /// Radius of a sphere about the local origin that holds the whole shape.
+    /// The same shape with every size (radius, half extent) replaced by `f(size)`.
+    pub fn map_sizes(self, f: impl Fn(f64) -> f64) -> Shape {
+        match self {
+            Shape::Sphere { radius } => Shape::Sphere { radius: f(radius) },
+            Shape::Disc { radius } => Shape::Disc { radius: f(radius) },
+            Shape::Box { half_extents } => Shape::Box {
+                half_extents: half_extents.map(f),
+            },
+            Shape::Square { half_size } => Shape::Square {
+                half_size: f(half_size),
+            },
+        }
+    }
+
     pub fn bounding_radius(&self) -> f64 {
         match *self {
             Shape::Sphere { radius } | Shape::Disc { radius } => radius,

@@ -555,11 +555,28 @@ fn scenes_fit_the_blender_bounds() {
             match preset {
                 Preset::Static => assert!((3..=5).contains(&extra), "{extra} objects"),
                 Preset::Family | Preset::Jumping => assert!(scene.has_motion()),
+                Preset::JumpingMovers => {
+                    // Movers alone (and at most a plate): nothing static but the ground.
+                    assert!((1..=3).contains(&extra), "{extra} movers");
+                    let still = scene.objects.iter().filter(|o| !o.is_moving());
+                    assert!(still.map(|o| o.name.as_str()).all(|n| n == "ground"));
+                }
                 _ => assert!((2..=3).contains(&extra), "{extra} objects besides the ground"),
             }
             for o in &scene.objects {
                 for step in 0..=10 {
                     let tau = step as f64 / 10.0;
+                    if let Shape::Sphere { radius } = o.shape {
+                        // A (squashed) sphere lies inside the sphere of its largest axis.
+                        let (_, s, c) = reference_pose(o, tau);
+                        let r = radius * s.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+                        assert!(
+                            c.iter().all(|v| v.abs() + r <= 1.5),
+                            "{preset} seed {seed}: {} leaves the box",
+                            o.name
+                        );
+                        continue;
+                    }
                     for p in extreme_points(&o.shape) {
                         let x = reference_world(o, p, tau);
                         assert!(
@@ -877,5 +894,31 @@ fn family_depths_stay_within_the_blender_near_and_far() {
                 );
             }
         }
+    }
+}
+
+/// `jumping_movers` is the D-NeRF kind of scene: most of what the cameras see moves, unlike
+/// `jumping` (the dynamic preset's set, where one small cube moves).
+#[test]
+fn jumping_movers_show_mostly_moving_pixels() {
+    let moving_share = |preset: Preset, seed: u64| {
+        let scene = Scene::from_config(&SynthConfig::new(preset).with_seed(seed).with_size(48, 48));
+        let movers = scene.moving_objects();
+        let (mut hit, mut moving) = (0usize, 0usize);
+        for v in scene.views_in(Split::Train).step_by(6) {
+            for id in scene.render(&scene.camera(v), v.time).object_id {
+                hit += usize::from(id >= 0);
+                moving += usize::from(id >= 0 && movers.contains(&(id as usize)));
+            }
+        }
+        moving as f64 / hit.max(1) as f64
+    };
+    for seed in 0..4 {
+        let (movers, jumping) = (
+            moving_share(Preset::JumpingMovers, seed),
+            moving_share(Preset::Jumping, seed),
+        );
+        assert!(movers > 0.3, "seed {seed}: {movers:.2} of the seen pixels move");
+        assert!(jumping < 0.2, "seed {seed}: jumping preset {jumping:.2}");
     }
 }

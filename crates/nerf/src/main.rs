@@ -63,8 +63,9 @@ enum Command {
     Synth {
         /// Output folder.
         out: PathBuf,
-        /// static, dynamic, static_video, family (a seed draws one of a family of videos) or
-        /// jumping (the dynamic scene seen D-NeRF-style, from a random viewpoint every frame).
+        /// static, dynamic, static_video, family (a seed draws one of a family of videos),
+        /// jumping (the dynamic scene seen D-NeRF-style, from a random viewpoint every frame) or
+        /// jumping_movers (D-NeRF's kind of scene: movers alone, a random viewpoint every frame).
         #[arg(long, default_value = "static")]
         preset: nerf_synth::Preset,
         #[arg(long, default_value_t = 0)]
@@ -254,7 +255,7 @@ fn run(cli: Cli) -> Result<()> {
                 summary.files_written
             );
             if let Some(v) = &summary.variation {
-                println!("family member: {}", v.describe());
+                println!("member: {}", v.describe());
             }
             Ok(())
         }

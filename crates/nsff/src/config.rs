@@ -317,7 +317,6 @@ impl NsffConfig {
         }
     }
 
-    /// Weight multiplier of the decaying terms at `step` and training `progress` in [0, 1].
     /// Settings for a jumping camera ([`crate::capture`]), after [`NsffConfig::adapt_to`]. Each
     /// time is seen from one viewpoint only, so the space-time grid's coarse levels share their
     /// features across many frames (their time resolution follows their spatial resolution) and
@@ -332,6 +331,18 @@ impl NsffConfig {
         splat
     }
 
+    /// Settings that cannot work together, as a message (after `--set` overrides).
+    pub fn validate(&self) -> Result<(), String> {
+        if self.dynamic_encoding == SpaceTimeEncoding::Planes && self.base.preset != Preset::Fast {
+            return Err(format!(
+                "dynamic_encoding=planes needs --preset fast (the {:?} preset's dynamic field has no grid to factorise)",
+                self.base.preset
+            ));
+        }
+        Ok(())
+    }
+
+    /// Weight multiplier of the decaying terms at `step` and training `progress` in [0, 1].
     pub fn decay(&self, step: usize, progress: f64) -> f64 {
         let by_steps = step / self.decay_steps.max(1);
         let by_progress = (progress / self.decay_fraction.max(1e-9)).floor() as usize;
@@ -342,6 +353,17 @@ impl NsffConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn planes_need_the_fast_preset() {
+        let mut cfg = NsffConfig::new(Preset::Vanilla, "unused".into(), LoadOptions::default());
+        assert!(cfg.validate().is_ok());
+        cfg.dynamic_encoding = SpaceTimeEncoding::Planes;
+        let err = cfg.validate().unwrap_err();
+        assert!(err.contains("planes") && err.contains("fast"), "{err}");
+        cfg.base.preset = Preset::Fast;
+        assert!(cfg.validate().is_ok());
+    }
 
     #[test]
     fn decay_follows_steps_or_budget_whichever_is_first() {

@@ -248,6 +248,7 @@ fn train(args: TrainArgs) -> Result<()> {
             );
         }
         let cfg = apply_overrides(&cfg, &common.overrides).map_err(|m| ModelError::usage(&common.data, m))?;
+        cfg.validate().map_err(|m| ModelError::usage(&common.data, m))?;
         NsffTrainer::new(cfg, video, &run_dir)?
     };
     t.train(true)?;

@@ -31,6 +31,14 @@ impl GridEncoding {
         }
     }
 
+    /// Features per point, `L·F`.
+    pub fn output_dim(&self) -> usize {
+        match self {
+            GridEncoding::Hash(g) => g.config.output_dim(),
+            GridEncoding::Planes(p) => p.output_dim(),
+        }
+    }
+
     /// The host tables, in a fixed order (sparse optimiser steps, checkpoints).
     pub fn grids(&self) -> Vec<Arc<HashGrid>> {
         match self {

@@ -59,7 +59,7 @@ impl FastFieldConfig {
         };
         let sh = self.sh_degree * self.sh_degree;
         FastField {
-            density: MlpConfig::new(self.grid.output_dim(), self.hidden, 1, self.geo_features).init(device),
+            density: MlpConfig::new(encoding.output_dim(), self.hidden, 1, self.geo_features).init(device),
             color: MlpConfig::new(self.geo_features + sh, self.color_hidden, self.color_layers, 3)
                 .init(device),
             extra: (self.extra_outputs > 0)
