@@ -41,6 +41,10 @@ pub trait Trainable {
     fn rollback(&mut self) -> Result<()>;
     /// Mean PSNR over a few held-out views.
     fn quick_eval(&mut self) -> Result<f64>;
+    /// A message the last step left for the training log (printed and kept in the metrics).
+    fn take_note(&mut self) -> Option<String> {
+        None
+    }
     /// The learning rate of the step just taken (logged).
     fn lr(&self) -> f64 {
         let cfg = self.config();
@@ -100,6 +104,10 @@ pub fn train(t: &mut impl Trainable, header: &str, show_progress: bool) -> Resul
         };
         bad = 0;
         let (step, elapsed) = (t.step(), t.elapsed());
+        let note = t.take_note();
+        if let Some(note) = &note {
+            progress.println(format!("step {step}: {note}"));
+        }
         let rays_per_sec = stats.rays as f64 / dt.max(1e-9);
         let spr = stats.samples as f64 / stats.rays.max(1) as f64;
         let lr = t.lr();
@@ -128,6 +136,7 @@ pub fn train(t: &mut impl Trainable, header: &str, show_progress: bool) -> Resul
             lr: Some(lr),
             rays_per_sec: Some(rays_per_sec),
             samples_per_ray: Some(spr),
+            note,
             ..Default::default()
         };
         if elapsed >= next_eval {

@@ -198,6 +198,13 @@ pub struct NsffConfig {
     /// the rate of 30 % into the run. Checkpoints from before it read false.
     #[serde(default)]
     pub lr_decay_after_warm_up: bool,
+    /// Ends the static warm-up early once the occupancy grid fills up again to this many times
+    /// its lowest occupied fraction (and by at least 10 % of the grid): the sign that the views
+    /// disagree and the static field paints fog where things move. 0: off (videos, whose
+    /// warm-up was chosen on the family); a jumping camera sets it ([`NsffConfig::
+    /// adapt_to_jumping_camera`]).
+    #[serde(default)]
+    pub warm_up_exit_rise: f32,
     /// Random points per step for the dynamic sparsity term (`weights.sparsity`).
     #[serde(default = "default_sparsity_points")]
     pub sparsity_points: usize,
@@ -290,6 +297,7 @@ impl NsffConfig {
             static_warm_up: 0.3,
             lr_decay_after_warm_up: true,
             sparsity_points: default_sparsity_points(),
+            warm_up_exit_rise: 0.0,
         }
     }
 
@@ -322,10 +330,13 @@ impl NsffConfig {
     /// features across many frames (their time resolution follows their spatial resolution) and
     /// only the finest levels resolve single frames (BENCHMARKS.md §8: better on all three
     /// generated jumping scenes of the tuning set). Renders between frames query the field
-    /// directly: splatting follows a scene flow that nothing trains here. Returns whether it
+    /// directly: splatting follows a scene flow that nothing trains here. The static warm-up
+    /// ends early when the occupancy grid fills up again (`warm_up_exit_rise`; BENCHMARKS.md
+    /// §8: where most of the scene moves, the warm-up's fog cost 1-2 dB). Returns whether it
     /// had to switch `time_interp`.
     pub fn adapt_to_jumping_camera(&mut self) -> bool {
         self.dynamic_grid.time_follows_space = true;
+        self.warm_up_exit_rise = 2.0;
         let splat = self.time_interp == TimeInterp::Splat;
         self.time_interp = TimeInterp::Direct;
         splat

@@ -42,6 +42,10 @@ pub struct NsffTrainer {
     n_rays: usize,
     /// Rays of the static batch.
     n_static_rays: usize,
+    /// The lowest occupied fraction of the grid seen during the static warm-up.
+    occupancy_floor: f32,
+    /// A message for the training log, taken by the loop.
+    note: Option<String>,
 }
 
 /// Loads the video dataset a config names and prepares flows and the motion decision.
@@ -108,6 +112,8 @@ impl NsffTrainer {
             device,
             n_rays,
             n_static_rays,
+            occupancy_floor: 1.0,
+            note: None,
         })
     }
 
@@ -216,6 +222,9 @@ impl NsffTrainer {
                     &self.device,
                 )
             })?;
+            if warm_up && self.cfg.warm_up_exit_rise > 0.0 {
+                self.end_warm_up_if_refilling();
+            }
         }
         if self.model.occupancy.is_some() {
             // Keep each batch near its share of `target_samples`, as the static trainer does.
@@ -260,6 +269,31 @@ impl NsffTrainer {
         let progress = self.cfg.base.progress(self.step, self.elapsed);
         let w = self.cfg.static_warm_up.clamp(0.0, 0.99);
         ((progress - w) / (1.0 - w)).max(0.0)
+    }
+
+    /// Ends the static warm-up now when the occupancy grid, after carving down to its floor,
+    /// fills up again by `warm_up_exit_rise` times and at least [`WARM_UP_EXIT_MIN_RISE`]: the
+    /// views disagree (things move), so the static field is painting fog over the space the
+    /// movers sweep, which would keep costing samples and sharpness for the rest of the run.
+    /// A static set only carves. The schedules then count from here (`static_warm_up` is set to
+    /// the progress now, and saved with the config).
+    fn end_warm_up_if_refilling(&mut self) {
+        let Some(now) = self.model.occupancy.as_ref().map(|g| g.occupied_fraction()) else {
+            return;
+        };
+        let floor = self.occupancy_floor.min(now);
+        self.occupancy_floor = floor;
+        if now > self.cfg.warm_up_exit_rise * floor && now - floor > WARM_UP_EXIT_MIN_RISE {
+            let progress = self.cfg.base.progress(self.step, self.elapsed);
+            self.cfg.static_warm_up = progress;
+            self.note = Some(format!(
+                "static warm-up ended at step {} ({:.0} % of the budget): the occupancy grid filled up again from {:.1} % to {:.1} % (the views disagree: things move)",
+                self.step,
+                100.0 * progress,
+                100.0 * floor,
+                100.0 * now
+            ));
+        }
     }
 
     /// Whether this step trains the static field alone (`static_warm_up`).
@@ -688,6 +722,10 @@ impl NsffTrainer {
     }
 }
 
+/// The least rise of the occupied fraction (of the whole grid) that ends a warm-up early, so
+/// that small grids' noise does not.
+const WARM_UP_EXIT_MIN_RISE: f32 = 0.1;
+
 /// Channels of the training renders beyond colour: the flowed points Σw(x + f) towards the next
 /// and previous frame, the disparity-like value of the depth prior, and the warped render's
 /// visibility weight.
@@ -758,6 +796,9 @@ impl nerf::train_loop::Trainable for NsffTrainer {
             crate::eval::evaluate_with_depth(&self.model, ds, &views, false, None, None, &self.device)?;
         Ok(result.mean_psnr)
     }
+    fn take_note(&mut self) -> Option<String> {
+        self.note.take()
+    }
     fn status(&self) -> String {
         self.model.occupancy.as_ref().map_or(String::new(), |o| {
             format!(", {:.1}% occupied", 100.0 * o.occupied_fraction())
@@ -773,6 +814,62 @@ mod tests {
 
     fn tables(grids: Vec<std::sync::Arc<nerf_core::encoding::HashGrid>>) -> Vec<Vec<f32>> {
         grids.iter().map(|g| g.table()).collect()
+    }
+
+    /// A jumping camera's warm-up ends when the grid fills up again after carving (twice its
+    /// floor and by at least a tenth of the grid); a grid that only carves, or rises by less,
+    /// keeps it. The schedules then count from the progress at that moment.
+    #[test]
+    fn warm_up_ends_when_the_grid_fills_up_again() {
+        let dir = std::env::temp_dir().join(format!("nsff-warm-up-exit-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let data = dir.join("jumping");
+        let synth = nerf_synth::SynthConfig::new(nerf_synth::Preset::JumpingMovers)
+            .with_size(24, 24)
+            .with_views(6, 2);
+        nerf_synth::generate(&synth, &data).unwrap();
+        let mut cfg = NsffConfig::new(Preset::Fast, data, LoadOptions::default());
+        let run_dir = dir.join("run");
+        let video = load_video(&cfg, &run_dir, true).unwrap();
+        assert!(video.camera_path.is_jumping());
+        cfg.adapt_to(&video.dataset, video.frames.len());
+        cfg.adapt_to_jumping_camera();
+        assert_eq!(cfg.warm_up_exit_rise, 2.0);
+        cfg.base.steps = 100;
+        cfg.base.time_budget = None;
+        cfg.static_warm_up = 0.9;
+        let mut t = NsffTrainer::new(cfg, video, &run_dir).unwrap();
+        let occupy = |t: &mut NsffTrainer, fraction: f64| {
+            let grid = t.model.occupancy.as_mut().unwrap();
+            let n = grid.num_cells();
+            let k = (fraction * n as f64).round() as usize;
+            grid.set_values((0..n).map(|i| if i < k { 100.0 } else { 0.0 }).collect());
+            t.end_warm_up_if_refilling();
+        };
+        t.step = 10;
+        for f in [1.0, 0.4, 0.1, 0.08, 0.15, 0.17] {
+            // Carving, then a rise by less than a tenth of the grid.
+            occupy(&mut t, f);
+            assert!(t.in_static_warm_up(), "ended at {f}");
+            assert!(t.note.is_none());
+        }
+        assert!((t.occupancy_floor - 0.08).abs() < 1e-3);
+        t.step = 30;
+        occupy(&mut t, 0.2);
+        assert!(
+            !t.in_static_warm_up(),
+            "a grid refilled from 8 % to 20 % ends the warm-up"
+        );
+        assert!((t.cfg.static_warm_up - 0.3).abs() < 1e-9);
+        let note = t.note.take().unwrap();
+        assert!(note.contains("8.0 % to 20.0 %"), "{note}");
+        assert_eq!(t.after_warm_up(), 0.0);
+        t.step = 65;
+        assert!(
+            (t.after_warm_up() - 0.5).abs() < 1e-9,
+            "the schedules count from the exit"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     /// During the static warm-up a step leaves the dynamic field untouched and trains the static
