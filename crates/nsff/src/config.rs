@@ -205,6 +205,10 @@ pub struct NsffConfig {
     /// adapt_to_jumping_camera`]).
     #[serde(default)]
     pub warm_up_exit_rise: f32,
+    /// When `warm_up_exit_rise` ends the warm-up, start the fields (and the optimiser) afresh,
+    /// so the fog the static field painted goes too; the warm-up then only decides.
+    #[serde(default)]
+    pub warm_up_exit_restart: bool,
     /// Random points per step for the dynamic sparsity term (`weights.sparsity`).
     #[serde(default = "default_sparsity_points")]
     pub sparsity_points: usize,
@@ -298,6 +302,7 @@ impl NsffConfig {
             lr_decay_after_warm_up: true,
             sparsity_points: default_sparsity_points(),
             warm_up_exit_rise: 0.0,
+            warm_up_exit_restart: false,
         }
     }
 

@@ -286,12 +286,19 @@ impl NsffTrainer {
         if now > self.cfg.warm_up_exit_rise * floor && now - floor > WARM_UP_EXIT_MIN_RISE {
             let progress = self.cfg.base.progress(self.step, self.elapsed);
             self.cfg.static_warm_up = progress;
+            let restart = self.cfg.warm_up_exit_restart;
+            if restart {
+                let (bounds, times) = (self.model.bounds.clone(), self.video.times.clone());
+                self.model = NsffModel::new(&self.cfg, bounds, times, self.has_dynamic(), &self.device);
+                self.optim = Optimizer::new(&self.cfg.base);
+            }
             self.note = Some(format!(
-                "static warm-up ended at step {} ({:.0} % of the budget): the occupancy grid filled up again from {:.1} % to {:.1} % (the views disagree: things move)",
+                "static warm-up ended at step {} ({:.0} % of the budget): the occupancy grid filled up again from {:.1} % to {:.1} % (the views disagree: things move){}",
                 self.step,
                 100.0 * progress,
                 100.0 * floor,
-                100.0 * now
+                100.0 * now,
+                if restart { "; fields restarted" } else { "" }
             ));
         }
     }
@@ -869,6 +876,35 @@ mod tests {
             (t.after_warm_up() - 0.5).abs() < 1e-9,
             "the schedules count from the exit"
         );
+
+        // With a restart the fields are a fresh model's when the rule fires.
+        t.step = 10;
+        t.cfg.static_warm_up = 0.9;
+        t.cfg.warm_up_exit_restart = true;
+        t.occupancy_floor = 1.0;
+        t.train_step().unwrap().expect("a finite warm-up step");
+        let fresh = NsffModel::new(
+            &t.cfg,
+            t.model.bounds.clone(),
+            t.video.times.clone(),
+            true,
+            &t.device,
+        );
+        let still = |m: &NsffModel| tables(m.fields.static_field.host_params());
+        assert_ne!(
+            still(&t.model),
+            still(&fresh),
+            "the step did not train the static field"
+        );
+        occupy(&mut t, 0.05);
+        occupy(&mut t, 0.5);
+        assert!(!t.in_static_warm_up());
+        assert_eq!(
+            still(&t.model),
+            still(&fresh),
+            "the static field was not restarted"
+        );
+        assert!(t.note.take().unwrap().contains("restarted"));
         let _ = std::fs::remove_dir_all(&dir);
     }
 

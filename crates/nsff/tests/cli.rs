@@ -203,6 +203,10 @@ fn a_jumping_camera_skips_the_flow() {
         text.contains("\"time_follows_space\": true") && text.contains("\"time_interp\": \"direct\""),
         "a jumping camera's space-time grid shares time on its coarse levels"
     );
+    assert!(
+        text.contains("\"warm_up_exit_rise\": 2.0"),
+        "a jumping camera's static warm-up ends when the grid fills up again"
+    );
     let eval = run(nsff().arg("eval").arg(&run_dir));
     assert!(mean_psnr(&eval).is_finite());
     std::fs::remove_dir_all(dir).unwrap();
