@@ -213,8 +213,14 @@ fn depth_lifts_onto_the_surface_of_the_reported_object() {
                     obj.name
                 );
             }
+            // Movers alone on white fill less of the frame than a set on a ground square.
+            let least = if preset == Preset::JumpingMovers {
+                w * h / 20
+            } else {
+                w * h / 4
+            };
             assert!(
-                foreground > w * h / 4,
+                foreground > least,
                 "{preset}: only {foreground} of {} pixels show the scene",
                 w * h
             );
