@@ -95,18 +95,7 @@ impl Variation {
         let mut rng = Rng::new(seed, STREAM_VARIATION);
         let backdrop = [Backdrop::OpenFloor, Backdrop::Walls, Backdrop::Distant][rng.below(3)];
         let count = [1, 1, 2, 2, 3][rng.below(5)];
-        let motions = [
-            MoverMotion::Translate,
-            MoverMotion::Spin,
-            MoverMotion::Deform,
-            MoverMotion::TranslateSpin,
-        ];
-        let movers = (0..count)
-            .map(|_| {
-                let motion = motions[rng.below(4)];
-                (motion, if rng.coin() { Speed::Fast } else { Speed::Slow })
-            })
-            .collect();
+        let movers = draw_motions(&mut rng, count);
         let path = [
             PathKind::ShortArc,
             PathKind::WideArc,
@@ -142,6 +131,22 @@ impl Variation {
             self.height
         )
     }
+}
+
+/// `count` movers' motions and speeds, each drawn uniformly.
+fn draw_motions(rng: &mut Rng, count: usize) -> Vec<(MoverMotion, Speed)> {
+    let motions = [
+        MoverMotion::Translate,
+        MoverMotion::Spin,
+        MoverMotion::Deform,
+        MoverMotion::TranslateSpin,
+    ];
+    (0..count)
+        .map(|_| {
+            let motion = motions[rng.below(4)];
+            (motion, if rng.coin() { Speed::Fast } else { Speed::Slow })
+        })
+        .collect()
 }
 
 /// Wall thickness (walls are thin boxes, so they are solid from both sides).
@@ -298,18 +303,7 @@ pub(super) fn build_movers(cfg: &SynthConfig, scene: &mut Scene) {
         Backdrop::Nothing
     };
     let count = [1, 2, 2, 3][rng.below(4)];
-    let motions = [
-        MoverMotion::Translate,
-        MoverMotion::Spin,
-        MoverMotion::Deform,
-        MoverMotion::TranslateSpin,
-    ];
-    let drawn: Vec<(MoverMotion, Speed)> = (0..count)
-        .map(|_| {
-            let motion = motions[rng.below(4)];
-            (motion, if rng.coin() { Speed::Fast } else { Speed::Slow })
-        })
-        .collect();
+    let drawn = draw_motions(&mut rng, count);
 
     let mut rng = Rng::new(cfg.seed, STREAM_LAYOUT);
     let mut objects = Vec::new();
