@@ -176,7 +176,9 @@ fn render_benches(c: &mut Criterion) {
     let mut model = StaticModel::new(&base, bounds.clone(), &dev);
     model.occupancy = Some(shell_grid(&base));
     let mut nsff = NsffModel::new(&nsff_cfg, bounds, vec![0.0, 0.5, 1.0], true, &dev);
-    nsff.occupancy = Some(shell_grid(&base));
+    if let Some(o) = nsff.occupancy.as_mut() {
+        o.with_bins_mut(|bins| bins.iter_mut().for_each(|g| *g = shell_grid(&base)));
+    }
     let mut g = c.benchmark_group("render_frame");
     g.sample_size(10).warm_up_time(Duration::from_millis(500));
     g.measurement_time(Duration::from_secs(5));

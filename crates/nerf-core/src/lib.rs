@@ -2,7 +2,7 @@
 //!
 //! - geometry (re-exported from `nerf-data`): [`camera`], [`rays`], [`ndc`]
 //! - samplers: where to look along a ray ([`sampler`]), and the [`occupancy`] grid that lets the
-//!   marcher skip empty space
+//!   marcher skip empty space, per time bin for fields that change with time ([`timed_occupancy`])
 //! - fields: the [`field::Field`] trait every model's fields implement
 //! - renderers: [`render::render`] turns samples and field outputs into pixels, through the fused
 //!   kernel in [`composite`]
@@ -23,5 +23,6 @@ pub mod profile;
 pub mod readback;
 pub mod render;
 pub mod sampler;
+pub mod timed_occupancy;
 
 pub use nerf_data::{camera, ndc, rays};

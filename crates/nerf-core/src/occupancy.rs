@@ -246,6 +246,25 @@ impl OccupancyGrid {
         self.rebuild_bits();
     }
 
+    /// The cells occupied in any of `grids` (all of one resolution and box), each with the
+    /// largest of their values; `None` for no grids. Never updated itself: rebuilt from them.
+    pub fn union_of(grids: &[OccupancyGrid]) -> Option<OccupancyGrid> {
+        let mut union = grids.first()?.clone();
+        for g in &grids[1..] {
+            assert_eq!(g.values.len(), union.values.len(), "grids of one resolution");
+            for (u, v) in union.values.iter_mut().zip(&g.values) {
+                *u = u.max(*v);
+            }
+            for (u, b) in union.bits.iter_mut().zip(&g.bits) {
+                *u |= *b;
+            }
+            for (u, c) in union.carved.iter_mut().zip(&g.carved) {
+                *u &= *c;
+            }
+        }
+        Some(union)
+    }
+
     /// Distance along unit direction `u` from `p` (inside the box) to the exit of its cell.
     pub fn cell_exit(&self, p: [f32; 3], u: [f32; 3]) -> f32 {
         let size = self.cell_size();

@@ -242,12 +242,13 @@ fn u64_le(b: &[u8]) -> u64 {
 /// Sections of the model parts are named after this.
 const MODEL: &str = "model";
 
-/// Adds a module's record, its host tables and an occupancy grid as the "model" sections.
+/// Adds a module's record, its host tables and its occupancy grids (none, one, or one per time
+/// bin) as the "model" sections.
 pub fn write_model_parts<M: Module>(
     s: &mut Sections,
     module: &M,
     host: &[Arc<HashGrid>],
-    occupancy: Option<&OccupancyGrid>,
+    occupancy: &[OccupancyGrid],
     path: &Path,
 ) -> Result<()> {
     let bytes = module
@@ -264,14 +265,21 @@ pub fn write_model_parts<M: Module>(
         adam.extend(f32_bytes(&v));
         s.push(&format!("{MODEL}.grid{k}_adam"), adam);
     }
-    if let Some(o) = occupancy {
-        s.push(&format!("{MODEL}.occupancy"), f32_bytes(o.values()));
-        s.push(
-            &format!("{MODEL}.carved"),
-            o.carved().iter().map(|&c| u8::from(c)).collect(),
-        );
+    for (k, o) in occupancy.iter().enumerate() {
+        let (values, carved) = occupancy_sections(k);
+        s.push(&values, f32_bytes(o.values()));
+        s.push(&carved, o.carved().iter().map(|&c| u8::from(c)).collect());
     }
     Ok(())
+}
+
+/// Section names of the k-th occupancy grid (the first keeps the single grid's names).
+fn occupancy_sections(k: usize) -> (String, String) {
+    if k == 0 {
+        (format!("{MODEL}.occupancy"), format!("{MODEL}.carved"))
+    } else {
+        (format!("{MODEL}.occupancy{k}"), format!("{MODEL}.carved{k}"))
+    }
 }
 
 /// Loads what [`write_model_parts`] wrote into a freshly built `module` (whose host tables are
@@ -280,7 +288,7 @@ pub fn read_model_parts<M: Module>(
     s: &Sections,
     module: M,
     host: impl Fn(&M) -> Vec<Arc<HashGrid>>,
-    occupancy: Option<&mut OccupancyGrid>,
+    occupancy: &mut [OccupancyGrid],
     path: &Path,
 ) -> Result<M> {
     let record =
@@ -311,9 +319,10 @@ pub fn read_model_parts<M: Module>(
             bytes_f32(&adam[8 + 4 * n..]),
         );
     }
-    if let Some(o) = occupancy {
-        let values = bytes_f32(s.require(&format!("{MODEL}.occupancy"), path)?);
-        let carved = s.require(&format!("{MODEL}.carved"), path)?;
+    for (k, o) in occupancy.iter_mut().enumerate() {
+        let (values, carved) = occupancy_sections(k);
+        let values = bytes_f32(s.require(&values, path)?);
+        let carved = s.require(&carved, path)?;
         if values.len() != o.num_cells() || carved.len() != o.num_cells() {
             return Err(ModelError::checkpoint(path, "occupancy grid has the wrong size"));
         }
@@ -328,7 +337,7 @@ impl<F: FieldModule> StaticModel<F> {
     pub fn write_sections(&self, s: &mut Sections, path: &Path) -> Result<()> {
         s.push_json("bounds", &self.bounds, path)?;
         let host = self.host_params();
-        write_model_parts(s, &self.fields, &host, self.occupancy.as_ref(), path)
+        write_model_parts(s, &self.fields, &host, self.occupancy.as_slice(), path)
     }
 
     /// Rebuilds the model that `cfg` describes from checkpoint sections; fields made by `build`.
@@ -342,7 +351,7 @@ impl<F: FieldModule> StaticModel<F> {
         let bounds: SceneBounds = s.json("bounds", path)?;
         let mut model = StaticModel::with_field(cfg, bounds, device, build);
         let host = StaticFields::host_params;
-        model.fields = read_model_parts(s, model.fields, host, model.occupancy.as_mut(), path)?;
+        model.fields = read_model_parts(s, model.fields, host, model.occupancy.as_mut_slice(), path)?;
         Ok(model)
     }
 }

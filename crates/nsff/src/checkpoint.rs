@@ -34,7 +34,8 @@ pub fn write_model(model: &NsffModel, s: &mut Sections, path: &Path) -> Result<(
     s.push_json("bounds", &model.bounds, path)?;
     s.push_json("times", &model.times, path)?;
     let host = model.host_params();
-    write_model_parts(s, &model.fields, &host, model.occupancy.as_ref(), path)
+    let grids = model.occupancy.as_ref().map_or(&[][..], |o| o.bins());
+    write_model_parts(s, &model.fields, &host, grids, path)
 }
 
 /// Rebuilds the model `cfg` describes (with or without a dynamic field) from checkpoint sections.
@@ -53,7 +54,11 @@ pub fn read_model(
         device,
     );
     let host = NsffFields::host_params;
-    model.fields = read_model_parts(s, model.fields, host, model.occupancy.as_mut(), path)?;
+    let fields = model.fields;
+    model.fields = match model.occupancy.as_mut() {
+        Some(o) => o.with_bins_mut(|grids| read_model_parts(s, fields, host, grids, path))?,
+        None => read_model_parts(s, fields, host, &mut [], path)?,
+    };
     Ok(model)
 }
 
@@ -123,5 +128,42 @@ mod tests {
             grid.set_table(vec![1.0; grid.num_params()]).unwrap();
         }
         assert_ne!(answer(&loaded), want);
+    }
+
+    /// Time-binned occupancy grids save one grid per bin and load back bin for bin (and the
+    /// union is rebuilt from them); a model without a dynamic field has one grid.
+    #[test]
+    fn time_binned_occupancy_round_trips_through_a_checkpoint() {
+        let device = Device::flex();
+        let mut cfg = NsffConfig::new(nerf::config::Preset::Fast, "unused".into(), Default::default());
+        cfg.occupancy_time_bins = 3;
+        let bounds = SceneBounds::object(2.0, 6.0, [[-1.0; 3], [1.0; 3]]);
+        let times: Vec<f32> = (0..10).map(|i| i as f32 / 9.0).collect();
+        let mut model = NsffModel::new(&cfg, bounds.clone(), times.clone(), true, &device);
+        let occupancy = model.occupancy.as_mut().unwrap();
+        assert_eq!(occupancy.num_bins(), 3);
+        occupancy.with_bins_mut(|bins| {
+            for (k, g) in bins.iter_mut().enumerate() {
+                // Bin k: the first (k + 1) tenths of the cells.
+                let n = g.num_cells();
+                g.set_values(
+                    (0..n)
+                        .map(|i| if i * 10 < (k + 1) * n { 1.0 } else { 0.0 })
+                        .collect(),
+                );
+            }
+        });
+        let path = Path::new("run/checkpoint.bin");
+        let mut s = Sections::default();
+        write_model(&model, &mut s, path).unwrap();
+        let loaded = read_model(&cfg, true, &s, path, &device).unwrap();
+        let (want, got) = (model.occupancy.unwrap(), loaded.occupancy.unwrap());
+        assert_eq!(got, want);
+        for (k, g) in got.bins().iter().enumerate() {
+            assert!((g.occupied_fraction() - 0.1 * (k + 1) as f32).abs() < 1e-3);
+        }
+        assert!((got.occupied_fraction() - 0.3).abs() < 1e-3, "the union");
+        let still = NsffModel::new(&cfg, bounds, times, false, &device);
+        assert_eq!(still.occupancy.unwrap().num_bins(), 1);
     }
 }

@@ -212,6 +212,16 @@ pub struct NsffConfig {
     /// Random points per step for the dynamic sparsity term (`weights.sparsity`).
     #[serde(default = "default_sparsity_points")]
     pub sparsity_points: usize,
+    /// Occupancy grids over time: the training times' range split into this many bins, each
+    /// with its own grid, so rays at one time skip the space movers occupy only at other times
+    /// (1: one grid for all times, as videos keep; a jumping camera sets 8; checkpoints from
+    /// before it read 1).
+    #[serde(default = "default_occupancy_time_bins")]
+    pub occupancy_time_bins: usize,
+}
+
+fn default_occupancy_time_bins() -> usize {
+    1
 }
 
 fn default_sparsity_points() -> usize {
@@ -303,6 +313,7 @@ impl NsffConfig {
             sparsity_points: default_sparsity_points(),
             warm_up_exit_rise: 0.0,
             warm_up_exit_restart: false,
+            occupancy_time_bins: default_occupancy_time_bins(),
         }
     }
 
@@ -337,11 +348,13 @@ impl NsffConfig {
     /// generated jumping scenes of the tuning set). Renders between frames query the field
     /// directly: splatting follows a scene flow that nothing trains here. The static warm-up
     /// ends early when the occupancy grid fills up again (`warm_up_exit_rise`; BENCHMARKS.md
-    /// §8: where most of the scene moves, the warm-up's fog cost 1-2 dB). Returns whether it
-    /// had to switch `time_interp`.
+    /// §8: where most of the scene moves, the warm-up's fog cost 1-2 dB). The occupancy grid
+    /// has 8 time bins (BENCHMARKS.md §8: level quality on the tuning set, fewer samples per
+    /// ray where things move). Returns whether it had to switch `time_interp`.
     pub fn adapt_to_jumping_camera(&mut self) -> bool {
         self.dynamic_grid.time_follows_space = true;
         self.warm_up_exit_rise = 2.0;
+        self.occupancy_time_bins = 8;
         let splat = self.time_interp == TimeInterp::Splat;
         self.time_interp = TimeInterp::Direct;
         splat

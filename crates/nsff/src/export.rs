@@ -27,7 +27,8 @@ impl Volume for SpaceTimeVolume<'_> {
     fn density(&self, positions: &[f32]) -> Result<Vec<f32>> {
         let times = vec![self.time; positions.len() / 3];
         let mut sigma = occupancy_density(&self.model.fields, positions, &times, self.device)?;
-        mask_unoccupied(self.model.occupancy.as_ref(), positions, &mut sigma);
+        let grid = self.model.occupancy.as_ref().map(|o| o.at(self.time));
+        mask_unoccupied(grid, positions, &mut sigma);
         Ok(sigma)
     }
 

@@ -1,5 +1,5 @@
 //! The NSFF model: the static and space-time fields, the occupancy grid over space (occupied
-//! where the combined density is, at any time), the scene bounds, the training frames' times and
+//! where the combined density is, at any time of its time bin), the scene bounds, the training frames' times and
 //! how rays are sampled. It renders (`render.rs`), is saved and loaded with the shared checkpoint
 //! parts (`checkpoint.rs`), and is trained by `trainer.rs`.
 
@@ -11,8 +11,8 @@ use nerf::error::{ModelError, read_back};
 use nerf::renderer::{SceneBounds, tensor};
 use nerf_core::encoding::HashGrid;
 use nerf_core::field::Field;
-use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::sampler::MarchConfig;
+use nerf_core::timed_occupancy::TimedOccupancy;
 
 use crate::config::{NsffConfig, TimeInterp};
 use crate::field::{BLEND, DynamicField, GATE, StaticField};
@@ -71,7 +71,7 @@ impl RenderSettings {
 #[derive(Debug)]
 pub struct NsffModel {
     pub fields: NsffFields,
-    pub occupancy: Option<OccupancyGrid>,
+    pub occupancy: Option<TimedOccupancy>,
     pub bounds: SceneBounds,
     /// Normalised time of each training frame, in frame order.
     pub times: Vec<f32>,
@@ -90,9 +90,15 @@ impl NsffModel {
     ) -> Self {
         let fields = NsffFields::new(cfg, bounds.aabb, with_dynamic, device);
         let f = &cfg.base.fast;
+        // Without a dynamic field nothing changes with time: one grid.
+        let bins = if with_dynamic { cfg.occupancy_time_bins } else { 1 };
+        let range = [
+            times.first().copied().unwrap_or(0.0),
+            times.last().copied().unwrap_or(1.0),
+        ];
         let occupancy =
             (cfg.base.preset == nerf::config::Preset::Fast && f.use_occupancy && !bounds.open_far)
-                .then(|| OccupancyGrid::new(f.occupancy.clone(), bounds.aabb));
+                .then(|| TimedOccupancy::new(f.occupancy.clone(), bounds.aabb, bins, range));
         NsffModel {
             fields,
             occupancy,
@@ -110,13 +116,13 @@ impl NsffModel {
         self.fields.host_params()
     }
 
-    /// Refreshes the occupancy grid with the combined density at one time per point, drawn by
-    /// `time_of` (see [`occupancy_density`]).
+    /// Refreshes the occupancy grid (one time bin of it) with the combined density at one time
+    /// per point, drawn in bin k by `time_in(k)` (see [`occupancy_density`]).
     pub fn update_occupancy(
         &mut self,
         step: usize,
         grid_rng: &mut rand::rngs::StdRng,
-        mut time_of: impl FnMut() -> f32,
+        mut time_in: impl FnMut(usize) -> f32,
         device: &Device,
     ) -> Result<(), ModelError> {
         let Some(grid) = self.occupancy.as_mut() else {
@@ -125,15 +131,19 @@ impl NsffModel {
         let fields = self.fields.valid();
         let plain = device.clone().inner();
         let mut failed = None;
-        let mut density = |p: &[f32]| -> Vec<f32> {
-            let n = p.len() / 3;
-            let t: Vec<f32> = (0..n).map(|_| time_of()).collect();
-            occupancy_density(&fields, p, &t, &plain).unwrap_or_else(|e| {
+        let mut density = |p: &[f32], t: &[f32]| -> Vec<f32> {
+            occupancy_density(&fields, p, t, &plain).unwrap_or_else(|e| {
                 failed = Some(e);
-                vec![0.0; n]
+                vec![0.0; t.len()]
             })
         };
-        grid.update(step, self.settings.march.step, grid_rng, &mut density);
+        grid.update(
+            step,
+            self.settings.march.step,
+            grid_rng,
+            &mut time_in,
+            &mut density,
+        );
         failed.map_or(Ok(()), Err)
     }
 }

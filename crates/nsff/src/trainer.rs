@@ -90,7 +90,12 @@ impl NsffTrainer {
             // A static scene is consistent with every view, so its visual hull is valid, as in
             // the static pipeline. (With independent motion a view's silhouette only bounds the
             // scene at that view's time, so dynamic scenes are not carved.)
-            let carved = nerf_core::occupancy::carve_visual_hull(grid, &video.dataset, &video.frames);
+            // (One grid: time bins are for a dynamic field.)
+            let carved = grid.with_bins_mut(|bins| {
+                bins.iter_mut()
+                    .map(|g| nerf_core::occupancy::carve_visual_hull(g, &video.dataset, &video.frames))
+                    .fold(0.0f32, f32::max)
+            });
             if carved > 0.0 {
                 eprintln!(
                     "occupancy grid: {:.1}% of the box carved away by the training silhouettes",
@@ -209,16 +214,16 @@ impl NsffTrainer {
         self.model.fields = self.optim.step(loss, lr, self.model.fields.clone(), &host);
         self.step += 1;
         if self.model.occupancy.as_ref().is_some_and(|o| o.due(self.step)) {
-            // One random training time per refreshed point: a cell the moving object crosses
-            // stays above the threshold for many refreshes once seen (values decay by 5 % per
-            // refresh).
-            let times = self.video.times.clone();
+            // One random training time of the bin per refreshed point: a cell the moving object
+            // crosses stays above the threshold for many refreshes once seen (values decay by
+            // 5 % per refresh).
+            let in_bin = self.training_times_per_bin();
             let mut grid_rng = StdRng::seed_from_u64(self.step as u64);
             span("nsff_occupancy", || {
                 self.model.update_occupancy(
                     self.step,
                     &mut grid_rng,
-                    || times[rng.random_range(0..times.len())],
+                    |k| in_bin[k][rng.random_range(0..in_bin[k].len())],
                     &self.device,
                 )
             })?;
@@ -303,6 +308,23 @@ impl NsffTrainer {
         }
     }
 
+    /// The training times in each of the occupancy grid's time bins; a bin without a frame gets
+    /// its middle time.
+    fn training_times_per_bin(&self) -> Vec<Vec<f32>> {
+        let Some(grid) = &self.model.occupancy else {
+            return Vec::new();
+        };
+        let mut in_bin = vec![Vec::new(); grid.num_bins()];
+        for &t in &self.video.times {
+            in_bin[grid.bin_of(t)].push(t);
+        }
+        for (k, times) in in_bin.iter_mut().enumerate().filter(|(_, t)| t.is_empty()) {
+            let [lo, hi] = grid.bin_range(k);
+            times.push(0.5 * (lo + hi));
+        }
+        in_bin
+    }
+
     /// Whether this step trains the static field alone (`static_warm_up`).
     fn in_static_warm_up(&self) -> bool {
         self.has_dynamic() && self.cfg.base.progress(self.step, self.elapsed) < self.cfg.static_warm_up
@@ -344,13 +366,13 @@ impl NsffTrainer {
         )
     }
 
-    /// Jittered samples along `rays` (occupancy marching where there is a grid).
-    fn samples(&self, rays: &Rays, rng: &mut StdRng) -> RaySamples {
-        let march = self
-            .model
-            .occupancy
-            .as_ref()
-            .map(|g| (g, &self.model.settings.march));
+    /// Jittered samples along `rays` (occupancy marching where there is a grid: the grid of
+    /// `time`'s bin, or of all bins for rays of mixed times).
+    fn samples(&self, rays: &Rays, time: Option<f32>, rng: &mut StdRng) -> RaySamples {
+        let march = self.model.occupancy.as_ref().map(|g| {
+            let grid = time.map_or_else(|| g.union(), |t| g.at(t));
+            (grid, &self.model.settings.march)
+        });
         let bounds = &self.model.bounds;
         sample_rays(rays, bounds, self.cfg.samples, !bounds.open_far, march, Some(rng))
     }
@@ -373,7 +395,7 @@ impl NsffTrainer {
         };
         let (v, ds, dev) = (&self.video, &self.video.dataset, &self.device);
         let (k, rays, target, r_n) = (batch.frame, &batch.rays, &batch.target, batch.rays.len());
-        let samples = self.samples(rays, rng);
+        let samples = self.samples(rays, Some(v.times[k]), rng);
         let s_n = samples.num_samples();
         if s_n == 0 {
             return Ok(None);
@@ -606,7 +628,12 @@ impl NsffTrainer {
             let mut p = [0.0f32; 3];
             for _ in 0..8 {
                 p = std::array::from_fn(|a| lo[a] + (hi[a] - lo[a]) * rng.random::<f32>());
-                if self.model.occupancy.as_ref().is_none_or(|g| g.is_occupied(p)) {
+                if self
+                    .model
+                    .occupancy
+                    .as_ref()
+                    .is_none_or(|g| g.at(time).is_occupied(p))
+                {
                     break;
                 }
             }
@@ -675,7 +702,8 @@ impl NsffTrainer {
         target: Tensor<2>,
         rng: &mut StdRng,
     ) -> Result<Option<(Tensor<1>, f64, usize)>> {
-        let samples = self.samples(rays, rng);
+        // Rays of mixed times (the static batch), or a model without time bins: the union.
+        let samples = self.samples(rays, None, rng);
         let s_n = samples.num_samples();
         if s_n == 0 {
             return Ok(None);
@@ -807,9 +835,17 @@ impl nerf::train_loop::Trainable for NsffTrainer {
         self.note.take()
     }
     fn status(&self) -> String {
-        self.model.occupancy.as_ref().map_or(String::new(), |o| {
-            format!(", {:.1}% occupied", 100.0 * o.occupied_fraction())
-        })
+        self.model
+            .occupancy
+            .as_ref()
+            .map_or(String::new(), |o| match o.num_bins() {
+                1 => format!(", {:.1}% occupied", 100.0 * o.occupied_fraction()),
+                _ => format!(
+                    ", {:.1}% occupied ({:.1}% per time bin)",
+                    100.0 * o.occupied_fraction(),
+                    100.0 * o.mean_bin_fraction()
+                ),
+            })
     }
 }
 
@@ -847,10 +883,13 @@ mod tests {
         cfg.static_warm_up = 0.9;
         let mut t = NsffTrainer::new(cfg, video, &run_dir).unwrap();
         let occupy = |t: &mut NsffTrainer, fraction: f64| {
-            let grid = t.model.occupancy.as_mut().unwrap();
-            let n = grid.num_cells();
-            let k = (fraction * n as f64).round() as usize;
-            grid.set_values((0..n).map(|i| if i < k { 100.0 } else { 0.0 }).collect());
+            t.model.occupancy.as_mut().unwrap().with_bins_mut(|bins| {
+                for grid in bins {
+                    let n = grid.num_cells();
+                    let k = (fraction * n as f64).round() as usize;
+                    grid.set_values((0..n).map(|i| if i < k { 100.0 } else { 0.0 }).collect());
+                }
+            });
             t.end_warm_up_if_refilling();
         };
         t.step = 10;

@@ -207,6 +207,10 @@ fn a_jumping_camera_skips_the_flow() {
         text.contains("\"warm_up_exit_rise\": 2.0"),
         "a jumping camera's static warm-up ends when the grid fills up again"
     );
+    assert!(
+        text.contains("\"occupancy_time_bins\": 8"),
+        "a jumping camera's occupancy grid has time bins"
+    );
     let eval = run(nsff().arg("eval").arg(&run_dir));
     assert!(mean_psnr(&eval).is_finite());
     std::fs::remove_dir_all(dir).unwrap();
