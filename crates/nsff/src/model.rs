@@ -1,7 +1,7 @@
 //! The NSFF model: the static and space-time fields, the occupancy grid over space (occupied
-//! where the combined density is, at any time of its time bin), the scene bounds, the training frames' times and
-//! how rays are sampled. It renders (`render.rs`), is saved and loaded with the shared checkpoint
-//! parts (`checkpoint.rs`), and is trained by `trainer.rs`.
+//! where the combined density is, at any time of its time bin), the scene bounds, the training
+//! frames' times and how rays are sampled. It renders (`render.rs`), is saved and loaded with
+//! the shared checkpoint parts (`checkpoint.rs`), and is trained by `trainer.rs`.
 
 use std::sync::Arc;
 
