@@ -218,6 +218,16 @@ pub struct NsffConfig {
     /// before it read 1).
     #[serde(default = "default_occupancy_time_bins")]
     pub occupancy_time_bins: usize,
+    /// Frames the space-time batch draws its rays from, `rays / frames_per_batch` each. 1 for a
+    /// video, whose flow, warp and disparity terms compare one frame with its neighbours; a
+    /// jumping camera has none of those and draws from several times at once (checkpoints from
+    /// before it read 1).
+    #[serde(default = "default_frames_per_batch")]
+    pub frames_per_batch: usize,
+}
+
+fn default_frames_per_batch() -> usize {
+    1
 }
 
 fn default_occupancy_time_bins() -> usize {
@@ -314,6 +324,7 @@ impl NsffConfig {
             warm_up_exit_rise: 0.0,
             warm_up_exit_restart: false,
             occupancy_time_bins: default_occupancy_time_bins(),
+            frames_per_batch: default_frames_per_batch(),
         }
     }
 
@@ -350,11 +361,15 @@ impl NsffConfig {
     /// ends early when the occupancy grid fills up again (`warm_up_exit_rise`; BENCHMARKS.md
     /// §8: where most of the scene moves, the warm-up's fog cost 1-2 dB). The occupancy grid
     /// has 8 time bins (BENCHMARKS.md §8: level quality on the tuning set, fewer samples per
-    /// ray where things move). Returns whether it had to switch `time_interp`.
+    /// ray where things move), and steps take half the static pipeline's samples. Returns
+    /// whether it had to switch `time_interp`.
     pub fn adapt_to_jumping_camera(&mut self) -> bool {
         self.dynamic_grid.time_follows_space = true;
         self.warm_up_exit_rise = 2.0;
         self.occupancy_time_bins = 8;
+        // Half the samples per step, about 1.5× the steps: better on six of seven generated
+        // jumping scenes at 120 s (BENCHMARKS.md §8).
+        self.base.fast.target_samples = 4096;
         let splat = self.time_interp == TimeInterp::Splat;
         self.time_interp = TimeInterp::Direct;
         splat

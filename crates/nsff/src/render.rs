@@ -76,19 +76,20 @@ pub struct SpaceTimeQuery {
     pub dy: FieldOutputs,
 }
 
-/// Queries both fields at `samples` along `rays` at normalised time `time`.
+/// Queries both fields at `samples` along `rays` at `[S, 1]` normalised times `time` (see
+/// [`crate::field::time_column`] for one time).
 pub fn query_space_time(
     model: &NsffModel,
     dynamic: &DynamicField,
     rays: &Rays,
     samples: &RaySamples,
-    time: f32,
+    time: Tensor<2>,
     device: &Device,
 ) -> SpaceTimeQuery {
     let x = tensor(samples.positions(rays), 3, device);
     let dirs = samples.per_sample3(&rays.viewdirs());
     let st = model.fields.static_field.query(FieldQuery::new(x.clone(), &dirs));
-    let dy = query_dynamic(dynamic, x.clone(), time, &dirs);
+    let dy = dynamic.query(FieldQuery::new(x.clone(), &dirs).at_time(Some(time)));
     SpaceTimeQuery { x, dirs, st, dy }
 }
 
@@ -414,7 +415,8 @@ mod tests {
         let dynamic = model.fields.dynamic.as_ref().unwrap();
         for time in [0.5f32, 0.3] {
             let samples = sample_rays(&rays, &bounds, cfg.samples, true, None, None);
-            let q = query_space_time(&model, dynamic, &rays, &samples, time, &dev);
+            let t = crate::field::time_column(time, samples.num_samples(), &dev);
+            let q = query_space_time(&model, dynamic, &rays, &samples, t, &dev);
             let train = render_combined(&model, &rays, &samples, &q, bg, true, &dev);
             let infer = render_direct(&model, &rays, time, bg, &dev).unwrap();
             let opacity = host(train.opacity.clone());

@@ -64,14 +64,32 @@ pub fn load_video(cfg: &NsffConfig, run_dir: &Path, quiet: bool) -> Result<Video
     )?)
 }
 
-/// One step's rays on one frame: `n_uniform` uniformly drawn pixels, then mined ones.
+/// One step's rays: `n_uniform` uniformly drawn pixels, then mined ones, in groups of rays from
+/// one frame each (one group for a video: its terms compare that frame with its neighbours).
 struct FrameBatch {
-    frame: usize,
+    /// Each group's frame and its rays' range in `pixels`, `rays` and `target`.
+    groups: Vec<(usize, std::ops::Range<usize>)>,
     pixels: Vec<u32>,
     n_uniform: usize,
     rays: Rays,
     /// `[R, 3]` target colours.
     target: Tensor<2>,
+}
+
+impl FrameBatch {
+    /// The first group's frame: the frame of a one-frame batch.
+    fn frame(&self) -> usize {
+        self.groups[0].0
+    }
+
+    /// `f(frame, pixel)` for every ray, in ray order.
+    fn per_ray<T>(&self, mut f: impl FnMut(usize, u32) -> T) -> Vec<T> {
+        let mut out = Vec::with_capacity(self.pixels.len());
+        for (k, range) in &self.groups {
+            out.extend(self.pixels[range.clone()].iter().map(|&p| f(*k, p)));
+        }
+        out
+    }
 }
 
 impl NsffTrainer {
@@ -84,6 +102,12 @@ impl NsffTrainer {
             DynamicMode::Off => false,
             DynamicMode::Auto => video.has_motion,
         };
+        if cfg.frames_per_batch > 1 && !video.camera_path.is_jumping() {
+            return Err(ModelError::usage(
+                &cfg.base.data,
+                "frames_per_batch > 1 needs a jumping camera: a video's flow, warp and disparity terms compare one frame with its neighbours",
+            ));
+        }
         let bounds = scene_bounds(&video.dataset);
         let mut model = NsffModel::new(&cfg, bounds, video.times.clone(), with_dynamic, &device);
         if let (Some(grid), false) = (model.occupancy.as_mut(), with_dynamic) {
@@ -330,26 +354,36 @@ impl NsffTrainer {
         self.has_dynamic() && self.cfg.base.progress(self.step, self.elapsed) < self.cfg.static_warm_up
     }
 
-    /// A random frame's rays: uniform pixels, plus (NSFF's hard mining, early on) pixels the flow
-    /// says are moving.
+    /// Rays of `frames_per_batch` random frames: uniform pixels, plus (NSFF's hard mining, early
+    /// on, one frame only) pixels the flow says are moving.
     fn frame_batch(&self, rng: &mut StdRng) -> FrameBatch {
         let v = &self.video;
-        let frame = rng.random_range(0..v.frames.len());
-        let view = &v.dataset.views[v.frames[frame]];
-        let (w, h) = (view.image.width, view.image.height);
-        let n_uniform = self.n_rays;
-        let mut pixels: Vec<u32> = (0..n_uniform).map(|_| rng.random_range(0..w * h)).collect();
-        let moving = &v.moving_pixels[frame];
-        if self.has_dynamic() && self.step < self.cfg.decay_steps && !moving.is_empty() {
-            let extra = (n_uniform as f32 * self.cfg.hard_fraction).round() as usize;
-            pixels.extend((0..extra).map(|_| moving[rng.random_range(0..moving.len())]));
+        let n_frames = self.cfg.frames_per_batch.clamp(1, self.n_rays.max(1));
+        let (mut groups, mut pixels, mut colours) = (Vec::new(), Vec::new(), Vec::new());
+        let mut rays = Rays::with_capacity(self.n_rays);
+        for g in 0..n_frames {
+            let frame = rng.random_range(0..v.frames.len());
+            let view = &v.dataset.views[v.frames[frame]];
+            let (w, h) = (view.image.width, view.image.height);
+            // Split n_rays as evenly as the division allows.
+            let n = (g + 1) * self.n_rays / n_frames - g * self.n_rays / n_frames;
+            let mut own: Vec<u32> = (0..n).map(|_| rng.random_range(0..w * h)).collect();
+            let moving = &v.moving_pixels[frame];
+            if n_frames == 1 && self.has_dynamic() && self.step < self.cfg.decay_steps && !moving.is_empty() {
+                let extra = (n as f32 * self.cfg.hard_fraction).round() as usize;
+                own.extend((0..extra).map(|_| moving[rng.random_range(0..moving.len())]));
+            }
+            groups.push((frame, pixels.len()..pixels.len() + own.len()));
+            rays.extend(&v.dataset.rays_for(&view.camera, own.iter().copied()));
+            colours.extend(pixel_colours(view, &own));
+            pixels.extend(own);
         }
         FrameBatch {
-            frame,
-            rays: v.dataset.rays_for(&view.camera, pixels.iter().copied()),
-            target: tensor(pixel_colours(view, &pixels), 3, &self.device),
+            groups,
+            rays,
+            target: tensor(colours, 3, &self.device),
             pixels,
-            n_uniform,
+            n_uniform: self.n_rays,
         }
     }
 
@@ -377,6 +411,18 @@ impl NsffTrainer {
         sample_rays(rays, bounds, self.cfg.samples, !bounds.open_far, march, Some(rng))
     }
 
+    /// [`Self::samples`] of a batch, each group at its frame's time, and each sample's time.
+    fn batch_samples(&self, batch: &FrameBatch, rng: &mut StdRng) -> (RaySamples, Vec<f32>) {
+        let times = &self.video.times;
+        let mut samples = RaySamples::with_rays(batch.rays.len());
+        for (k, range) in &batch.groups {
+            samples.append(&self.samples(&batch.rays.slice(range.clone()), Some(times[*k]), rng));
+        }
+        let ray_times = batch.per_ray(|k, _| times[k]);
+        let sample_times = samples.per_sample(&ray_times);
+        (samples, sample_times)
+    }
+
     /// The loss of one step (NSFF HEAD's terms, method.md §4.6), the space-time batch's stats and
     /// the static batch's sample count (0 without one); `None` when no ray has samples. During the
     /// static warm-up (`warm_up`) the static batch alone.
@@ -394,14 +440,15 @@ impl NsffTrainer {
             return Ok(Some((loss, stats(m, batch.rays.len(), s_n), 0)));
         };
         let (v, ds, dev) = (&self.video, &self.video.dataset, &self.device);
-        let (k, rays, target, r_n) = (batch.frame, &batch.rays, &batch.target, batch.rays.len());
-        let samples = self.samples(rays, Some(v.times[k]), rng);
+        let (k, rays, target, r_n) = (batch.frame(), &batch.rays, &batch.target, batch.rays.len());
+        let (samples, sample_times) = self.batch_samples(&batch, rng);
         let s_n = samples.num_samples();
         if s_n == 0 {
             return Ok(None);
         }
         let (wts, decay) = (&self.cfg.weights, self.decay());
-        let q = query_space_time(&self.model, dynamic, rays, &samples, v.times[k], dev);
+        let t = tensor(sample_times, 1, dev);
+        let q = query_space_time(&self.model, dynamic, rays, &samples, t, dev);
         let (x, dirs, st, dy) = (&q.x, &q.dirs, &q.st, &q.dy);
         let (b_s, gate) = (st.extras.expect(BLEND), dy.extras.expect(GATE));
 
@@ -420,11 +467,8 @@ impl NsffTrainer {
             loss = loss + losses::still_dynamic_share(share, vec![1.0; n_u]) * wts.dynamic_share;
         }
         if wts.still_dynamic > 0.0 {
-            let mask = &v.motion_masks[k];
-            let still = batch.pixels[..n_u]
-                .iter()
-                .map(|&p| if mask[p as usize] { 0.0 } else { 1.0 })
-                .collect();
+            let mut still = batch.per_ray(|k, p| if v.motion_masks[k][p as usize] { 0.0 } else { 1.0 });
+            still.truncate(n_u);
             let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
             loss = loss + losses::still_dynamic_share(share, still) * wts.still_dynamic;
         }
@@ -454,19 +498,14 @@ impl NsffTrainer {
                 .with(DISPARITY, disparity)],
         );
         let dyn_photo = if self.cfg.dynamic_photo_masked {
-            let mask = &v.motion_masks[k];
-            let moving = batch
-                .pixels
-                .iter()
-                .map(|&p| f32::from(u8::from(mask[p as usize])))
-                .collect();
+            let moving = batch.per_ray(|k, p| f32::from(u8::from(v.motion_masks[k][p as usize])));
             losses::wmse(dyn_only.rgb.clone(), target.clone(), tensor(moving, 1, dev))
         } else {
             losses::mse(dyn_only.rgb.clone(), target.clone())
         };
         loss = loss + dyn_photo * wts.dynamic_photo;
-        if let (Some(disp), true) = (&v.disparity[k], wts.depth > 0.0) {
-            // Monocular disparity, up to an unknown scale and shift per frame.
+        // Monocular disparity, up to an unknown scale and shift per frame: one frame's rays only.
+        if let (Some(disp), true, 1) = (&v.disparity[k], wts.depth > 0.0, batch.groups.len()) {
             let prior: Vec<f32> = batch.pixels.iter().map(|&p| disp[p as usize]).collect();
             if let Some(l) = losses::scale_shift_invariant(dyn_only.expect(DISPARITY), &prior)? {
                 loss = loss + l * (wts.depth * decay);
@@ -859,12 +898,10 @@ mod tests {
         grids.iter().map(|g| g.table()).collect()
     }
 
-    /// A jumping camera's warm-up ends when the grid fills up again after carving (twice its
-    /// floor and by at least a tenth of the grid); a grid that only carves, or rises by less,
-    /// keeps it. The schedules then count from the progress at that moment.
-    #[test]
-    fn warm_up_ends_when_the_grid_fills_up_again() {
-        let dir = std::env::temp_dir().join(format!("nsff-warm-up-exit-{}", std::process::id()));
+    /// A small generated jumping-camera scene in a fresh temporary folder named after `name`:
+    /// the folder, the config adapted to it and the loaded video (run folder `dir/run`).
+    fn jumping_scene(name: &str) -> (PathBuf, NsffConfig, Video) {
+        let dir = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let data = dir.join("jumping");
         let synth = nerf_synth::SynthConfig::new(nerf_synth::Preset::JumpingMovers)
@@ -872,11 +909,20 @@ mod tests {
             .with_views(6, 2);
         nerf_synth::generate(&synth, &data).unwrap();
         let mut cfg = NsffConfig::new(Preset::Fast, data, LoadOptions::default());
-        let run_dir = dir.join("run");
-        let video = load_video(&cfg, &run_dir, true).unwrap();
+        let video = load_video(&cfg, &dir.join("run"), true).unwrap();
         assert!(video.camera_path.is_jumping());
         cfg.adapt_to(&video.dataset, video.frames.len());
         cfg.adapt_to_jumping_camera();
+        (dir, cfg, video)
+    }
+
+    /// A jumping camera's warm-up ends when the grid fills up again after carving (twice its
+    /// floor and by at least a tenth of the grid); a grid that only carves, or rises by less,
+    /// keeps it. The schedules then count from the progress at that moment.
+    #[test]
+    fn warm_up_ends_when_the_grid_fills_up_again() {
+        let (dir, mut cfg, video) = jumping_scene("nsff-warm-up-exit");
+        let run_dir = dir.join("run");
         assert_eq!(cfg.warm_up_exit_rise, 2.0);
         cfg.base.steps = 100;
         cfg.base.time_budget = None;
@@ -944,6 +990,62 @@ mod tests {
             "the static field was not restarted"
         );
         assert!(t.note.take().unwrap().contains("restarted"));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A jumping camera's batch draws from several frames: the rays of each group come from its
+    /// frame's camera through the drawn pixels (checked by projecting them back), and every
+    /// sample carries its frame's time. A video refuses more than one frame per batch.
+    #[test]
+    fn a_batch_draws_from_several_frames_of_a_jumping_camera() {
+        let (dir, mut cfg, video) = jumping_scene("nsff-frames-per-batch");
+        let run_dir = dir.join("run");
+        cfg.frames_per_batch = 3;
+        let mut t = NsffTrainer::new(cfg, video, &run_dir).unwrap();
+        t.n_rays = 10;
+        let mut rng = StdRng::seed_from_u64(7);
+        let batch = t.frame_batch(&mut rng);
+        let sizes: Vec<usize> = batch.groups.iter().map(|(_, r)| r.len()).collect();
+        assert_eq!(sizes, vec![3, 3, 4]);
+        assert_eq!((batch.rays.len(), batch.target.dims()), (10, [10, 3]));
+        for (k, range) in &batch.groups {
+            let camera = &t.video.dataset.views[t.video.frames[*k]].camera;
+            let centre = camera.pose.to_world([0.0; 3]);
+            for r in range.clone() {
+                let (o, d) = (batch.rays.origin(r), batch.rays.direction(r));
+                let p: [f64; 3] = std::array::from_fn(|a| f64::from(o[a] + 2.0 * d[a]));
+                let (u, v, _) = camera.project(p).expect("in front of its camera");
+                let w = camera.intrinsics.width;
+                let px = batch.pixels[r];
+                assert!((u - (f64::from(px % w) + 0.5)).abs() < 1e-3, "ray {r}: u {u}");
+                assert!((v - (f64::from(px / w) + 0.5)).abs() < 1e-3, "ray {r}: v {v}");
+                assert!((0..3).all(|a| (f64::from(o[a]) - centre[a]).abs() < 1e-4));
+            }
+        }
+        let (samples, times) = t.batch_samples(&batch, &mut rng);
+        assert!(samples.num_samples() > 0);
+        for (s, &ray) in samples.ray_indices().iter().enumerate() {
+            let (k, _) = batch
+                .groups
+                .iter()
+                .find(|(_, r)| r.contains(&(ray as usize)))
+                .unwrap();
+            assert_eq!(times[s], t.video.times[*k]);
+        }
+
+        let video_data = dir.join("video");
+        let synth = nerf_synth::SynthConfig::new(nerf_synth::Preset::Dynamic)
+            .with_size(32, 24)
+            .with_views(6, 2);
+        nerf_synth::generate(&synth, &video_data).unwrap();
+        let mut cfg = NsffConfig::new(Preset::Fast, video_data, LoadOptions::default());
+        let video = load_video(&cfg, &run_dir, true).unwrap();
+        assert!(!video.camera_path.is_jumping());
+        cfg.frames_per_batch = 2;
+        let err = NsffTrainer::new(cfg, video, &run_dir)
+            .err()
+            .expect("a video refuses it");
+        assert!(err.to_string().contains("frames_per_batch"), "{err}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 

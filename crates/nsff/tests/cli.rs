@@ -211,6 +211,10 @@ fn a_jumping_camera_skips_the_flow() {
         text.contains("\"occupancy_time_bins\": 8"),
         "a jumping camera's occupancy grid has time bins"
     );
+    assert!(
+        text.contains("\"target_samples\": 4096"),
+        "a jumping camera takes smaller, more frequent steps"
+    );
     let eval = run(nsff().arg("eval").arg(&run_dir));
     assert!(mean_psnr(&eval).is_finite());
     std::fs::remove_dir_all(dir).unwrap();

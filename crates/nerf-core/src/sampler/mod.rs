@@ -84,6 +84,26 @@ impl RaySamples {
         out
     }
 
+    /// The rays of `other` after this batch's (samples drawn group by group, e.g. each group of
+    /// rays marched through its own occupancy grid).
+    pub fn append(&mut self, other: &RaySamples) {
+        let base = self.num_samples() as u32;
+        self.offsets
+            .extend(other.offsets.iter().skip(1).map(|o| base + o));
+        self.t_start.extend_from_slice(&other.t_start);
+        self.t_end.extend_from_slice(&other.t_end);
+        self.t.extend_from_slice(&other.t);
+    }
+
+    /// Per-sample copies of a per-ray scalar (e.g. each ray's time), `[S]`.
+    pub fn per_sample(&self, per_ray: &[f32]) -> Vec<f32> {
+        let mut out = Vec::with_capacity(self.num_samples());
+        for (r, &v) in per_ray.iter().enumerate().take(self.num_rays()) {
+            out.extend(std::iter::repeat_n(v, self.range(r).len()));
+        }
+        out
+    }
+
     /// Per-sample copies of a per-ray `[R, 3]` quantity (e.g. view directions), `[S, 3]`.
     pub fn per_sample3(&self, per_ray: &[f32]) -> Vec<f32> {
         let mut out = Vec::with_capacity(3 * self.num_samples());
@@ -132,5 +152,29 @@ impl RaySamples {
             out.finish_ray();
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn no_jitter() -> Option<&'static mut rand::rngs::StdRng> {
+        None
+    }
+
+    /// Sampling two groups of rays apart and appending equals sampling them together.
+    #[test]
+    fn appended_groups_equal_one_batch() {
+        let (near, far) = ([0.5f32, 1.0, 2.0, 0.0, 3.0], [4.0f32, 1.0, 6.0, 2.5, 3.5]);
+        let whole = stratified(&near, &far, 7, Spacing::Depth, no_jitter());
+        let mut parts = stratified(&near[..2], &far[..2], 7, Spacing::Depth, no_jitter());
+        parts.append(&stratified(&near[2..], &far[2..], 7, Spacing::Depth, no_jitter()));
+        assert_eq!(parts, whole);
+        // One value per ray spread over its samples: ray r's samples carry r.
+        let per_ray: Vec<f32> = (0..5).map(|r| r as f32).collect();
+        let spread = parts.per_sample(&per_ray);
+        let expected: Vec<f32> = parts.ray_indices().iter().map(|&r| r as f32).collect();
+        assert_eq!(spread, expected);
     }
 }
