@@ -512,20 +512,8 @@ impl NsffTrainer {
             }
         }
 
-        // Neighbouring frames: warped renders, disocclusion weights, cycle and flow terms (a
-        // jumping camera's neighbours are unrelated views: none of these).
-        let n_frames = if v.camera_path.is_jumping() {
-            0
-        } else {
-            v.frames.len()
-        };
-        for (j, forward) in [
-            (k + 1 < n_frames).then(|| (k + 1, true)),
-            (k > 0).then(|| (k - 1, false)),
-        ]
-        .into_iter()
-        .flatten()
-        {
+        // Neighbouring frames: warped renders, disocclusion weights, cycle and flow terms.
+        for (j, forward) in neighbours(k, v.frames.len(), v.camera_path.is_jumping()) {
             let (flow, prob, x_j, flowed) = if forward {
                 (
                     flow_next.clone(),
@@ -808,6 +796,18 @@ const X_PREV: &str = "x_prev";
 const DISPARITY: &str = "disparity";
 const VISIBLE: &str = "visible";
 
+/// The neighbours of frame `k` (of `frames`) that a step's warp terms compare it with, each
+/// with whether it is the next frame: none for a jumping camera, whose neighbours are unrelated
+/// views.
+fn neighbours(k: usize, frames: usize, jumping: bool) -> Vec<(usize, bool)> {
+    if jumping {
+        return Vec::new();
+    }
+    let next = (k + 1 < frames).then_some((k + 1, true));
+    let prev = (k > 0).then(|| (k - 1, false));
+    next.into_iter().chain(prev).collect()
+}
+
 /// Per-sample value whose render the depth prior compares with monocular disparity: 1/t for a
 /// Euclidean ray (t is the camera depth), 1 − t in NDC (t = 1 − near/|z|, so 1 − t is
 /// proportional to the disparity). Either way the rendered value is affine in disparity where
@@ -896,6 +896,19 @@ mod tests {
 
     fn tables(grids: Vec<std::sync::Arc<nerf_core::encoding::HashGrid>>) -> Vec<Vec<f32>> {
         grids.iter().map(|g| g.table()).collect()
+    }
+
+    /// A video's step warps towards both neighbours (one at either end); a jumping camera's
+    /// towards none.
+    #[test]
+    fn warp_neighbours_are_a_video_s_only() {
+        assert_eq!(neighbours(0, 5, false), vec![(1, true)]);
+        assert_eq!(neighbours(2, 5, false), vec![(3, true), (1, false)]);
+        assert_eq!(neighbours(4, 5, false), vec![(3, false)]);
+        assert_eq!(neighbours(0, 1, false), vec![]);
+        for k in 0..5 {
+            assert_eq!(neighbours(k, 5, true), vec![], "frame {k}");
+        }
     }
 
     /// A small generated jumping-camera scene in a fresh temporary folder named after `name`:
