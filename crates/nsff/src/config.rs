@@ -212,6 +212,12 @@ pub struct NsffConfig {
     /// Random points per step for the dynamic sparsity term (`weights.sparsity`).
     #[serde(default = "default_sparsity_points")]
     pub sparsity_points: usize,
+    /// Share of a space-time step's rays drawn where the frame's recent renders were worst
+    /// (Instant-NGP's error map over 8-pixel tiles, `nerf_core::error_map`); the rest are
+    /// uniform. Every ray counts in the photometric loss. Jumping cameras only (a video's
+    /// extra rays are NSFF's hard mining); `adapt_to_jumping_camera` sets 0.5.
+    #[serde(default)]
+    pub error_rays: f32,
     /// Occupancy grids over time: the training times' range split into this many bins, each
     /// with its own grid, so rays at one time skip the space movers occupy only at other times
     /// (1: one grid for all times, as videos keep; a jumping camera sets 8; checkpoints from
@@ -321,6 +327,7 @@ impl NsffConfig {
             static_warm_up: 0.3,
             lr_decay_after_warm_up: true,
             sparsity_points: default_sparsity_points(),
+            error_rays: 0.0,
             warm_up_exit_rise: 0.0,
             warm_up_exit_restart: false,
             occupancy_time_bins: default_occupancy_time_bins(),
@@ -370,6 +377,11 @@ impl NsffConfig {
         // Half the samples per step, about 1.5× the steps: better on six of seven generated
         // jumping scenes at 120 s (BENCHMARKS.md §8).
         self.base.fast.target_samples = 4096;
+        // A quarter of the sparsity term's points: a cheaper step, better on six of seven
+        // generated jumping scenes at 120 s (BENCHMARKS.md §8).
+        self.sparsity_points = 512;
+        // Half the rays where the frame rendered worst: better on six of seven (BENCHMARKS.md §8).
+        self.error_rays = 0.5;
         let splat = self.time_interp == TimeInterp::Splat;
         self.time_interp = TimeInterp::Direct;
         splat

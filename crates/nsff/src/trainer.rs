@@ -2,6 +2,7 @@
 //! renders (all through the shared render function) and the loss terms of `losses.rs`.
 //! Bookkeeping (budgets, checkpoints, metrics log, progress, plot) is the static pipeline's loop.
 
+use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 
 use burn::tensor::{Device, Tensor};
@@ -10,6 +11,7 @@ use nerf::error::{ModelError, Result, read_scalar};
 use nerf::model::scene_bounds;
 use nerf::optimizer::Optimizer;
 use nerf::renderer::tensor;
+use nerf_core::error_map::ErrorMap;
 use nerf_core::field::{Field, FieldOutputs, FieldQuery};
 use nerf_core::metrics::psnr_from_mse;
 use nerf_core::profile::span;
@@ -46,6 +48,8 @@ pub struct NsffTrainer {
     occupancy_floor: f32,
     /// A message for the training log, taken by the loop.
     note: Option<String>,
+    /// Per-frame tile errors for `error_rays` (filled in by the steps, which borrow `self`).
+    error_map: Option<RefCell<ErrorMap>>,
 }
 
 /// Loads the video dataset a config names and prepares flows and the motion decision.
@@ -130,6 +134,18 @@ impl NsffTrainer {
         let optim = Optimizer::new(&cfg.base);
         let n_rays = cfg.rays;
         let n_static_rays = cfg.rays;
+        let error_map = (cfg.error_rays > 0.0 && video.camera_path.is_jumping()).then(|| {
+            let sizes: Vec<(u32, u32)> = (video.frames.iter())
+                .map(|&i| {
+                    (
+                        video.dataset.views[i].image.width,
+                        video.dataset.views[i].image.height,
+                    )
+                })
+                .collect();
+            // Tiles start above any squared error (at most 3), so unseen tiles come first.
+            RefCell::new(ErrorMap::new(&sizes, 8, 3.0))
+        });
         Ok(NsffTrainer {
             cfg,
             video,
@@ -143,6 +159,7 @@ impl NsffTrainer {
             n_static_rays,
             occupancy_floor: 1.0,
             note: None,
+            error_map,
         })
     }
 
@@ -367,7 +384,14 @@ impl NsffTrainer {
             let (w, h) = (view.image.width, view.image.height);
             // Split n_rays as evenly as the division allows.
             let n = (g + 1) * self.n_rays / n_frames - g * self.n_rays / n_frames;
-            let mut own: Vec<u32> = (0..n).map(|_| rng.random_range(0..w * h)).collect();
+            let n_error = match &self.error_map {
+                Some(_) => (n as f32 * self.cfg.error_rays.clamp(0.0, 1.0)).round() as usize,
+                None => 0,
+            };
+            let mut own: Vec<u32> = (0..n - n_error).map(|_| rng.random_range(0..w * h)).collect();
+            if let Some(map) = &self.error_map {
+                own.extend(map.borrow().sample(frame, n_error, rng));
+            }
             let moving = &v.moving_pixels[frame];
             if n_frames == 1 && self.has_dynamic() && self.step < self.cfg.decay_steps && !moving.is_empty() {
                 let extra = (n as f32 * self.cfg.hard_fraction).round() as usize;
@@ -461,6 +485,16 @@ impl NsffTrainer {
             combined.rgb.clone().slice([0..n_u, 0..3]),
             target.clone().slice([0..n_u, 0..3]),
         );
+        if let Some(map) = &self.error_map {
+            let err = (combined.rgb.clone().detach() - target.clone())
+                .powf_scalar(2.0)
+                .sum_dim(1);
+            let err = nerf_core::readback::read_back(err.inner(), "ray errors")?;
+            let mut map = map.borrow_mut();
+            for (frame, range) in &batch.groups {
+                map.record(*frame, &batch.pixels[range.clone()], &err[range.clone()]);
+            }
+        }
         let mut loss = mse_cb.clone();
         if wts.dynamic_share > 0.0 {
             let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
@@ -929,6 +963,81 @@ mod tests {
         (dir, cfg, video)
     }
 
+    /// With `error_rays`, a jumping camera's batch draws that share of its rays from the frame's
+    /// error map (every ray still scored), and a step records each ray's squared error in its
+    /// frame's tile: rays then follow the tiles that rendered worst. A video keeps no map.
+    #[test]
+    fn error_rays_follow_the_frames_worst_tiles() {
+        let (dir, mut cfg, video) = jumping_scene("nsff-error-rays");
+        let run_dir = dir.join("run");
+        cfg.error_rays = 0.5;
+        cfg.static_warm_up = 0.0;
+        let mut t = NsffTrainer::new(cfg, video, &run_dir).unwrap();
+        t.n_rays = 64;
+        let mut rng = StdRng::seed_from_u64(9);
+        let batch = t.frame_batch(&mut rng);
+        assert_eq!((batch.rays.len(), batch.n_uniform), (64, 64));
+        // One step on a fresh model (the same draws): each recorded tile moves from its start
+        // (3, above any squared error) towards its rays' errors.
+        let frame = batch.frame();
+        let mut rng = StdRng::seed_from_u64(9);
+        t.step_loss(false, &mut rng).unwrap().expect("a step");
+        let map = t.error_map.as_ref().unwrap().borrow();
+        let mut rng = StdRng::seed_from_u64(9);
+        let again = t.frame_batch(&mut rng);
+        // The uniform half is drawn first, so it repeats the step's rays.
+        assert_eq!(again.frame(), frame);
+        assert_eq!(again.pixels[..32], batch.pixels[..32]);
+        let touched = again
+            .pixels
+            .iter()
+            .filter(|&&p| map.tile_error(frame, p) < 3.0)
+            .count();
+        assert!(touched > 0, "the step recorded no error");
+        for &p in &again.pixels {
+            let e = map.tile_error(frame, p);
+            assert!(e.is_finite() && (0.0..=3.0).contains(&e), "{e}");
+        }
+        // Draws follow the errors: after recording zero error everywhere but one tile, the
+        // error half of a batch lands in that tile.
+        drop(map);
+        let w = t.video.dataset.views[t.video.frames[frame]].image.width;
+        {
+            let mut map = t.error_map.as_ref().unwrap().borrow_mut();
+            let all: Vec<u32> = (0..w * w).collect();
+            for _ in 0..100 {
+                map.record(frame, &all, &vec![0.0; all.len()]);
+                map.record(frame, &[0], &[1.0]);
+            }
+        }
+        let map = t.error_map.as_ref().unwrap().borrow();
+        let drawn = map.sample(frame, 200, &mut rng);
+        assert!(
+            drawn.iter().all(|&p| p % w < 8 && p / w < 8),
+            "outside the hot tile"
+        );
+        drop(map);
+
+        let (mut cfg, video) = video_scene(&dir);
+        cfg.error_rays = 0.5;
+        let t = NsffTrainer::new(cfg, video, &run_dir).unwrap();
+        assert!(t.error_map.is_none());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A small generated video (smooth camera path) under `dir/video`, loaded.
+    fn video_scene(dir: &Path) -> (NsffConfig, Video) {
+        let data = dir.join("video");
+        let synth = nerf_synth::SynthConfig::new(nerf_synth::Preset::Dynamic)
+            .with_size(32, 24)
+            .with_views(6, 2);
+        nerf_synth::generate(&synth, &data).unwrap();
+        let cfg = NsffConfig::new(Preset::Fast, data, LoadOptions::default());
+        let video = load_video(&cfg, &dir.join("run"), true).unwrap();
+        assert!(!video.camera_path.is_jumping());
+        (cfg, video)
+    }
+
     /// A jumping camera's warm-up ends when the grid fills up again after carving (twice its
     /// floor and by at least a tenth of the grid); a grid that only carves, or rises by less,
     /// keeps it. The schedules then count from the progress at that moment.
@@ -1046,14 +1155,7 @@ mod tests {
             assert_eq!(times[s], t.video.times[*k]);
         }
 
-        let video_data = dir.join("video");
-        let synth = nerf_synth::SynthConfig::new(nerf_synth::Preset::Dynamic)
-            .with_size(32, 24)
-            .with_views(6, 2);
-        nerf_synth::generate(&synth, &video_data).unwrap();
-        let mut cfg = NsffConfig::new(Preset::Fast, video_data, LoadOptions::default());
-        let video = load_video(&cfg, &run_dir, true).unwrap();
-        assert!(!video.camera_path.is_jumping());
+        let (mut cfg, video) = video_scene(&dir);
         cfg.frames_per_batch = 2;
         let err = NsffTrainer::new(cfg, video, &run_dir)
             .err()

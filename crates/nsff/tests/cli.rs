@@ -215,6 +215,14 @@ fn a_jumping_camera_skips_the_flow() {
         text.contains("\"target_samples\": 4096"),
         "a jumping camera takes smaller, more frequent steps"
     );
+    assert!(
+        text.contains("\"sparsity_points\": 512"),
+        "a jumping camera's sparsity term looks at fewer points"
+    );
+    assert!(
+        text.contains("\"error_rays\": 0.5"),
+        "half a jumping camera's rays follow its error map"
+    );
     let eval = run(nsff().arg("eval").arg(&run_dir));
     assert!(mean_psnr(&eval).is_finite());
     std::fs::remove_dir_all(dir).unwrap();
