@@ -87,17 +87,20 @@ impl ErrorMap {
             if !e.is_finite() || p >= im.width * im.height {
                 continue;
             }
-            let (x, y) = (p % im.width, p / im.width);
-            let i = im.start + ((y / self.tile) * im.columns + x / self.tile) as usize;
+            let i = self.tile_of(&im, p);
             self.error[i] += self.rate * (e - self.error[i]);
         }
     }
 
     /// The running estimate of the tile holding pixel `pixel` of image `image`.
     pub fn tile_error(&self, image: usize, pixel: u32) -> f32 {
-        let im = self.images[image];
+        self.error[self.tile_of(&self.images[image], pixel)]
+    }
+
+    /// Index in `error` of the tile holding `pixel` (`y·width + x`) of `im`.
+    fn tile_of(&self, im: &ImageTiles, pixel: u32) -> usize {
         let (x, y) = (pixel % im.width, pixel / im.width);
-        self.error[im.start + ((y / self.tile) * im.columns + x / self.tile) as usize]
+        im.start + ((y / self.tile) * im.columns + x / self.tile) as usize
     }
 }
 

@@ -68,12 +68,15 @@ pub fn load_video(cfg: &NsffConfig, run_dir: &Path, quiet: bool) -> Result<Video
     )?)
 }
 
-/// One step's rays: `n_uniform` uniformly drawn pixels, then mined ones, in groups of rays from
-/// one frame each (one group for a video: its terms compare that frame with its neighbours).
+/// One step's rays, in groups of rays from one frame each (one group for a video: its terms
+/// compare that frame with its neighbours). Within a group, uniformly drawn pixels, then those
+/// drawn from the error map, then NSFF's hard-mined ones.
 struct FrameBatch {
     /// Each group's frame and its rays' range in `pixels`, `rays` and `target`.
     groups: Vec<(usize, std::ops::Range<usize>)>,
     pixels: Vec<u32>,
+    /// Rays the combined render's loss scores: all but the hard-mined ones (which would bias the
+    /// blend); the error-map rays count.
     n_uniform: usize,
     rays: Rays,
     /// `[R, 3]` target colours.
@@ -135,14 +138,8 @@ impl NsffTrainer {
         let n_rays = cfg.rays;
         let n_static_rays = cfg.rays;
         let error_map = (cfg.error_rays > 0.0 && video.camera_path.is_jumping()).then(|| {
-            let sizes: Vec<(u32, u32)> = (video.frames.iter())
-                .map(|&i| {
-                    (
-                        video.dataset.views[i].image.width,
-                        video.dataset.views[i].image.height,
-                    )
-                })
-                .collect();
+            let images = video.frames.iter().map(|&i| &video.dataset.views[i].image);
+            let sizes: Vec<(u32, u32)> = images.map(|im| (im.width, im.height)).collect();
             // Tiles start above any squared error (at most 3), so unseen tiles come first.
             RefCell::new(ErrorMap::new(&sizes, 8, 3.0))
         });
@@ -476,8 +473,8 @@ impl NsffTrainer {
         let (x, dirs, st, dy) = (&q.x, &q.dirs, &q.st, &q.dy);
         let (b_s, gate) = (st.extras.expect(BLEND), dy.extras.expect(GATE));
 
-        // Combined render, scored over the uniformly drawn rays only, as NSFF (the mined ones
-        // would bias the blend).
+        // Combined render, scored over the uniform and error-map rays, not NSFF's hard-mined
+        // ones (they would bias the blend).
         let share = wts.still_dynamic > 0.0 || wts.dynamic_share > 0.0;
         let combined = render_combined(&self.model, rays, &samples, &q, ds.background, share, dev);
         let n_u = batch.n_uniform;
