@@ -45,6 +45,10 @@ pub struct LossWeights {
     pub dynamic_share: f64,
 }
 
+fn default_render_step_scale() -> f32 {
+    1.0
+}
+
 fn default_still_dynamic() -> f64 {
     0.0
 }
@@ -218,6 +222,16 @@ pub struct NsffConfig {
     /// extra rays are NSFF's hard mining); `adapt_to_jumping_camera` sets 0.5.
     #[serde(default)]
     pub error_rays: f32,
+    /// Half-width, in frames, of a uniform random offset added to each space-time ray's time
+    /// while training (0: the frame's own time). With one viewpoint per frame, a frame's own
+    /// time cells at the finest levels would otherwise be fitted to that one view.
+    #[serde(default)]
+    pub time_jitter: f32,
+    /// The march step of renders (evaluation, `nsff render`, the viewer) as a fraction of the
+    /// training step. Training marches coarsely because a sample there costs four field queries
+    /// and a backward pass; a render's sample costs two queries (1: the training step).
+    #[serde(default = "default_render_step_scale")]
+    pub render_step_scale: f32,
     /// Occupancy grids over time: the training times' range split into this many bins, each
     /// with its own grid, so rays at one time skip the space movers occupy only at other times
     /// (1: one grid for all times, as videos keep; a jumping camera sets 8; checkpoints from
@@ -328,6 +342,8 @@ impl NsffConfig {
             lr_decay_after_warm_up: true,
             sparsity_points: default_sparsity_points(),
             error_rays: 0.0,
+            time_jitter: 0.0,
+            render_step_scale: default_render_step_scale(),
             warm_up_exit_rise: 0.0,
             warm_up_exit_restart: false,
             occupancy_time_bins: default_occupancy_time_bins(),
@@ -363,7 +379,8 @@ impl NsffConfig {
     /// time is seen from one viewpoint only, so the space-time grid's coarse levels share their
     /// features across many frames (their time resolution follows their spatial resolution) and
     /// only the finest levels resolve single frames (BENCHMARKS.md §8: better on all three
-    /// generated jumping scenes of the tuning set). Renders between frames query the field
+    /// generated jumping scenes of the tuning set); a ray's time is jittered by up to half a
+    /// frame so that a fine time cell learns from more than one view. Renders between frames query the field
     /// directly: splatting follows a scene flow that nothing trains here. The static warm-up
     /// ends early when the occupancy grid fills up again (`warm_up_exit_rise`; BENCHMARKS.md
     /// §8: where most of the scene moves, the warm-up's fog cost 1-2 dB). The occupancy grid
@@ -382,6 +399,10 @@ impl NsffConfig {
         self.sparsity_points = 512;
         // Half the rays where the frame rendered worst: better on six of seven (BENCHMARKS.md §8).
         self.error_rays = 0.5;
+        // Each ray's time within half a frame of its frame's: better on six of seven, and a
+        // render marching at half the training step: better on seven of seven (BENCHMARKS.md §8).
+        self.time_jitter = 0.5;
+        self.render_step_scale = 0.5;
         let splat = self.time_interp == TimeInterp::Splat;
         self.time_interp = TimeInterp::Direct;
         splat

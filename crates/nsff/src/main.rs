@@ -44,6 +44,10 @@ enum Command {
         /// Renders between frames: splat or direct (default: the run's own setting).
         #[arg(long, value_enum)]
         time_interp: Option<TimeInterp>,
+        /// March step of the renders as a fraction of the training step (default: the run's own
+        /// setting, `render_step_scale`; smaller is finer and slower).
+        #[arg(long)]
+        render_step_scale: Option<f32>,
         /// Render with the static field alone (the dynamic field skipped everywhere) and write
         /// eval_static.json: tells whether an error comes from the static or the dynamic field.
         #[arg(long)]
@@ -115,6 +119,10 @@ struct RenderArgs {
     /// Renders between frames: direct or splat (default: the run's own setting).
     #[arg(long, value_enum)]
     time_interp: Option<TimeInterp>,
+    /// March step of the renders as a fraction of the training step (default: the run's own
+    /// setting, `render_step_scale`; smaller is finer and slower).
+    #[arg(long)]
+    render_step_scale: Option<f32>,
 }
 
 fn main() -> ExitCode {
@@ -134,9 +142,10 @@ fn run(cli: Cli) -> Result<()> {
             run_dir,
             save_images,
             time_interp,
+            render_step_scale,
             static_only,
         } => {
-            let mut t = open_run(&run_dir, time_interp)?;
+            let mut t = open_run(&run_dir, time_interp, render_step_scale)?;
             if static_only {
                 t.model.settings.blend_skip = f32::INFINITY;
             }
@@ -147,7 +156,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Render(args) => render(args),
         Command::View(args) => {
-            let t = open_run(&args.run_dir, None)?;
+            let t = open_run(&args.run_dir, None, None)?;
             let title = format!("{} (step {})", args.run_dir.display(), t.step);
             let scene = nerf::viewer::ViewerScene::of(&t.dataset, &title);
             let model = nsff::view::SpaceTimeView {
@@ -158,7 +167,7 @@ fn run(cli: Cli) -> Result<()> {
             nerf::viewer::run(&model, &scene, &args.host, args.port)
         }
         Command::Export(ExportWhat::Mesh { mesh, time }) => {
-            let t = open_run(&mesh.run_dir, None)?;
+            let t = open_run(&mesh.run_dir, None, None)?;
             require_bounded(&t.dataset, &mesh.run_dir)?;
             let volume = SpaceTimeVolume {
                 model: &t.model,
@@ -181,7 +190,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Export(ExportWhat::Points(args)) => {
-            let t = open_run(&args.run_dir, None)?;
+            let t = open_run(&args.run_dir, None, None)?;
             require_bounded(&t.dataset, &args.run_dir)?;
             let mut cloud = PointCloud::default();
             let bar = nerf::export::progress(true, t.frames.len() as u64, "frames");
@@ -294,11 +303,22 @@ struct Run {
     device: burn::tensor::Device,
 }
 
-/// Loads a run's model from its checkpoint, and its dataset for cameras and images.
-fn open_run(run_dir: &Path, time_interp: Option<TimeInterp>) -> Result<Run> {
+/// Loads a run's model from its checkpoint, and its dataset for cameras and images; `Some`
+/// overrides the run's own render settings.
+fn open_run(run_dir: &Path, time_interp: Option<TimeInterp>, render_step_scale: Option<f32>) -> Result<Run> {
     let mut t = nsff::checkpoint::load_trained(run_dir)?;
     if let Some(ti) = time_interp {
         t.model.settings.time_interp = ti;
+    }
+    if let Some(scale) = render_step_scale {
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(ModelError::usage(
+                run_dir,
+                format!("--render-step-scale must be a positive number, got {scale}"),
+            ));
+        }
+        let settings = &mut t.model.settings;
+        settings.render_march.step = settings.march.step * scale;
     }
     let cfg = t.state.config;
     let dataset = nerf_data::load::load_video(&cfg.base.data, &cfg.base.load)?;
@@ -450,7 +470,7 @@ fn render_path(t: &Run, kind: PathKind, frame: usize, n: usize, out: &Path) -> R
 }
 
 fn render(args: RenderArgs) -> Result<()> {
-    let t = open_run(&args.run_dir, args.time_interp)?;
+    let t = open_run(&args.run_dir, args.time_interp, args.render_step_scale)?;
     let out = args.out.unwrap_or_else(|| args.run_dir.join("render"));
     match args.cameras {
         Some(json) => {

@@ -50,8 +50,10 @@ impl NsffFields {
 pub struct RenderSettings {
     /// Stratified samples per ray (without an occupancy grid) and depth layers of the splat.
     pub samples: usize,
-    /// Occupancy marching (object scenes, fast preset).
+    /// Occupancy marching of training (object scenes, fast preset).
     pub march: MarchConfig,
+    /// The same for renders: a finer step ([`NsffConfig::render_step_scale`]).
+    pub render_march: MarchConfig,
     /// Samples whose static blend weight b_s is below this skip the dynamic field at inference.
     pub blend_skip: f32,
     pub time_interp: TimeInterp,
@@ -62,6 +64,10 @@ impl RenderSettings {
         RenderSettings {
             samples: cfg.samples,
             march: cfg.base.fast.march.clone(),
+            render_march: MarchConfig {
+                step: cfg.base.fast.march.step * cfg.render_step_scale,
+                ..cfg.base.fast.march.clone()
+            },
             blend_skip: cfg.blend_skip,
             time_interp: cfg.time_interp,
         }

@@ -439,7 +439,11 @@ impl NsffTrainer {
         for (k, range) in &batch.groups {
             samples.append(&self.samples(&batch.rays.slice(range.clone()), Some(times[*k]), rng));
         }
-        let ray_times = batch.per_ray(|k, _| times[k]);
+        let jitter = self.cfg.time_jitter / (times.len().max(2) - 1) as f32;
+        let ray_times = batch.per_ray(|k, _| match jitter > 0.0 {
+            true => (times[k] + rng.random_range(-jitter..=jitter)).clamp(0.0, 1.0),
+            false => times[k],
+        });
         let sample_times = samples.per_sample(&ray_times);
         (samples, sample_times)
     }
@@ -1114,7 +1118,8 @@ mod tests {
 
     /// A jumping camera's batch draws from several frames: the rays of each group come from its
     /// frame's camera through the drawn pixels (checked by projecting them back), and every
-    /// sample carries its frame's time. A video refuses more than one frame per batch.
+    /// sample carries its frame's time (or, with a time jitter, its ray's time near the frame's).
+    /// A video refuses more than one frame per batch.
     #[test]
     fn a_batch_draws_from_several_frames_of_a_jumping_camera() {
         let (dir, mut cfg, video) = jumping_scene("nsff-frames-per-batch");
@@ -1141,16 +1146,42 @@ mod tests {
                 assert!((0..3).all(|a| (f64::from(o[a]) - centre[a]).abs() < 1e-4));
             }
         }
-        let (samples, times) = t.batch_samples(&batch, &mut rng);
-        assert!(samples.num_samples() > 0);
-        for (s, &ray) in samples.ray_indices().iter().enumerate() {
+        let frame_time = |times: &[f32], ray: u32| {
             let (k, _) = batch
                 .groups
                 .iter()
                 .find(|(_, r)| r.contains(&(ray as usize)))
                 .unwrap();
-            assert_eq!(times[s], t.video.times[*k]);
+            times[*k]
+        };
+        t.cfg.time_jitter = 0.0;
+        let (samples, times) = t.batch_samples(&batch, &mut rng);
+        assert!(samples.num_samples() > 0);
+        for (s, &ray) in samples.ray_indices().iter().enumerate() {
+            assert_eq!(times[s], frame_time(&t.video.times, ray));
         }
+
+        // With a time jitter every ray's samples share one time, within the jitter (one
+        // frame's spacing here) of the frame's time and inside [0, 1].
+        t.cfg.time_jitter = 1.0;
+        let spacing = 1.0 / (t.video.times.len() - 1) as f32;
+        let (samples, times) = t.batch_samples(&batch, &mut rng);
+        let mut ray_time = std::collections::HashMap::new();
+        let mut moved = 0;
+        for (s, &ray) in samples.ray_indices().iter().enumerate() {
+            let offset = (times[s] - frame_time(&t.video.times, ray)).abs();
+            assert!(
+                offset <= spacing * 1.0001 && (0.0..=1.0).contains(&times[s]),
+                "sample {s}: {offset}"
+            );
+            assert_eq!(
+                *ray_time.entry(ray).or_insert(times[s]),
+                times[s],
+                "ray {ray}'s samples disagree"
+            );
+            moved += usize::from(offset > 0.0);
+        }
+        assert!(moved > 0, "no sample's time moved");
 
         let (mut cfg, video) = video_scene(&dir);
         cfg.frames_per_batch = 2;

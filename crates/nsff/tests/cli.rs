@@ -188,7 +188,8 @@ fn a_jumping_camera_skips_the_flow() {
         .with_views(12, 4);
     nerf_synth::generate(&cfg, &data).unwrap();
     let run_dir = dir.join("run");
-    let stderr = train_briefly(&data, &run_dir, 30);
+    // 100 steps: after 30 no occupancy cell is occupied, and the render check below needs samples.
+    let stderr = train_briefly(&data, &run_dir, 100);
     assert!(stderr.contains("camera path: jumping"), "{stderr}");
     assert!(stderr.contains("no optical flow"), "{stderr}");
     assert!(stderr.contains("dynamic field on"), "{stderr}");
@@ -223,8 +224,41 @@ fn a_jumping_camera_skips_the_flow() {
         text.contains("\"error_rays\": 0.5"),
         "half a jumping camera's rays follow its error map"
     );
+    assert!(
+        text.contains("\"time_jitter\": 0.5") && text.contains("\"render_step_scale\": 0.5"),
+        "a jumping camera jitters its rays' times and renders at half the training step"
+    );
     let eval = run(nsff().arg("eval").arg(&run_dir));
     assert!(mean_psnr(&eval).is_finite());
+    // A finer render step, asked for at evaluation, marches more samples per ray (twice as
+    // many from the run's own 0.5 to 0.25).
+    let samples_per_ray = || -> f64 {
+        let text = std::fs::read_to_string(run_dir.join("eval.json")).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        v["samples_per_ray"].as_f64().unwrap()
+    };
+    let own = samples_per_ray();
+    let fine = run(nsff()
+        .arg("eval")
+        .arg(&run_dir)
+        .args(["--render-step-scale", "0.25"]));
+    assert!(mean_psnr(&fine).is_finite());
+    assert!(
+        samples_per_ray() > 1.5 * own,
+        "{} against {own}",
+        samples_per_ray()
+    );
+    let bad = nsff()
+        .arg("eval")
+        .arg(&run_dir)
+        .args(["--render-step-scale", "0"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&bad.stderr);
+    assert!(
+        !bad.status.success() && stderr.contains("--render-step-scale"),
+        "{stderr}"
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
 
