@@ -440,9 +440,12 @@ impl NsffTrainer {
             samples.append(&self.samples(&batch.rays.slice(range.clone()), Some(times[*k]), rng));
         }
         let jitter = self.cfg.time_jitter / (times.len().max(2) - 1) as f32;
-        let ray_times = batch.per_ray(|k, _| match jitter > 0.0 {
-            true => (times[k] + rng.random_range(-jitter..=jitter)).clamp(0.0, 1.0),
-            false => times[k],
+        let ray_times = batch.per_ray(|k, _| {
+            if jitter > 0.0 {
+                (times[k] + rng.random_range(-jitter..=jitter)).clamp(0.0, 1.0)
+            } else {
+                times[k]
+            }
         });
         let sample_times = samples.per_sample(&ray_times);
         (samples, sample_times)
