@@ -381,12 +381,12 @@ impl NsffConfig {
     /// only the finest levels resolve single frames (BENCHMARKS.md §8: better on all three
     /// generated jumping scenes of the tuning set); a ray's time is jittered by up to half a
     /// frame so that a fine time cell learns from more than one view. Renders between frames
-    /// query the field directly: splatting follows a scene flow that nothing trains here. The static warm-up
-    /// ends early when the occupancy grid fills up again (`warm_up_exit_rise`; BENCHMARKS.md
-    /// §8: where most of the scene moves, the warm-up's fog cost 1-2 dB). The occupancy grid
-    /// has 8 time bins (BENCHMARKS.md §8: level quality on the tuning set, fewer samples per
-    /// ray where things move), and steps take half the static pipeline's samples. Returns
-    /// whether it had to switch `time_interp`.
+    /// query the field directly: splatting follows a scene flow that nothing trains here. The
+    /// static warm-up ends early when the occupancy grid fills up again (`warm_up_exit_rise`;
+    /// BENCHMARKS.md §8: where most of the scene moves, the warm-up's fog cost 1-2 dB). The
+    /// occupancy grid has 8 time bins (BENCHMARKS.md §8: level quality on the tuning set, fewer
+    /// samples per ray where things move), and steps take half the static pipeline's samples.
+    /// Returns whether it had to switch `time_interp`.
     pub fn adapt_to_jumping_camera(&mut self) -> bool {
         self.dynamic_grid.time_follows_space = true;
         self.warm_up_exit_rise = 2.0;

@@ -317,8 +317,7 @@ fn open_run(run_dir: &Path, time_interp: Option<TimeInterp>, render_step_scale: 
                 format!("--render-step-scale must be a positive number, got {scale}"),
             ));
         }
-        let settings = &mut t.model.settings;
-        settings.render_march.step = settings.march.step * scale;
+        t.model.settings.render_step_scale = scale;
     }
     let cfg = t.state.config;
     let dataset = nerf_data::load::load_video(&cfg.base.data, &cfg.base.load)?;

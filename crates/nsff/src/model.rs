@@ -52,22 +52,27 @@ pub struct RenderSettings {
     pub samples: usize,
     /// Occupancy marching of training (object scenes, fast preset).
     pub march: MarchConfig,
-    /// The same for renders: a finer step ([`NsffConfig::render_step_scale`]).
-    pub render_march: MarchConfig,
+    /// Renders march at this fraction of `march`'s step ([`NsffConfig::render_step_scale`]).
+    pub render_step_scale: f32,
     /// Samples whose static blend weight b_s is below this skip the dynamic field at inference.
     pub blend_skip: f32,
     pub time_interp: TimeInterp,
 }
 
 impl RenderSettings {
+    /// The marching of renders: training's, at `render_step_scale` of its step.
+    pub fn render_march(&self) -> MarchConfig {
+        MarchConfig {
+            step: self.march.step * self.render_step_scale,
+            ..self.march.clone()
+        }
+    }
+
     pub fn from_config(cfg: &NsffConfig) -> Self {
         RenderSettings {
             samples: cfg.samples,
             march: cfg.base.fast.march.clone(),
-            render_march: MarchConfig {
-                step: cfg.base.fast.march.step * cfg.render_step_scale,
-                ..cfg.base.fast.march.clone()
-            },
+            render_step_scale: cfg.render_step_scale,
             blend_skip: cfg.blend_skip,
             time_interp: cfg.time_interp,
         }

@@ -146,10 +146,8 @@ pub fn render_direct(
     let plain = device.clone().inner();
     let fields = model.fields.valid();
     let (bounds, settings) = (&model.bounds, &model.settings);
-    let march = model
-        .occupancy
-        .as_ref()
-        .map(|g| (g.at(time), &settings.render_march));
+    let render_march = settings.render_march();
+    let march = model.occupancy.as_ref().map(|g| (g.at(time), &render_march));
     let samples = sample_rays(rays, bounds, settings.samples, !bounds.open_far, march, None);
     let s_n = samples.num_samples();
     if s_n == 0 {

@@ -243,11 +243,8 @@ fn a_jumping_camera_skips_the_flow() {
         .arg(&run_dir)
         .args(["--render-step-scale", "0.25"]));
     assert!(mean_psnr(&fine).is_finite());
-    assert!(
-        samples_per_ray() > 1.5 * own,
-        "{} against {own}",
-        samples_per_ray()
-    );
+    let finer = samples_per_ray();
+    assert!(finer > 1.5 * own, "{finer} against {own}");
     let bad = nsff()
         .arg("eval")
         .arg(&run_dir)
