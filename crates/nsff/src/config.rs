@@ -416,6 +416,18 @@ impl NsffConfig {
                 self.base.preset
             ));
         }
+        if !(self.time_jitter.is_finite() && self.time_jitter >= 0.0) {
+            return Err(format!(
+                "time_jitter must be 0 or more frames, got {}",
+                self.time_jitter
+            ));
+        }
+        if !(self.render_step_scale.is_finite() && self.render_step_scale > 0.0) {
+            return Err(format!(
+                "render_step_scale must be a positive number, got {}",
+                self.render_step_scale
+            ));
+        }
         Ok(())
     }
 
@@ -439,6 +451,26 @@ mod tests {
         let err = cfg.validate().unwrap_err();
         assert!(err.contains("planes") && err.contains("fast"), "{err}");
         cfg.base.preset = Preset::Fast;
+        assert!(cfg.validate().is_ok());
+    }
+
+    /// A negative or NaN jitter, or a render step scale that is not positive, is refused with
+    /// the setting's name (a zero step would put every render sample at one point).
+    #[test]
+    fn jitter_and_render_step_must_make_sense() {
+        let fresh = || NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
+        for jitter in [-0.5, f32::NAN] {
+            let mut cfg = fresh();
+            cfg.time_jitter = jitter;
+            assert!(cfg.validate().unwrap_err().contains("time_jitter"));
+        }
+        for scale in [0.0, -1.0, f32::INFINITY] {
+            let mut cfg = fresh();
+            cfg.render_step_scale = scale;
+            assert!(cfg.validate().unwrap_err().contains("render_step_scale"));
+        }
+        let mut cfg = fresh();
+        cfg.adapt_to_jumping_camera();
         assert!(cfg.validate().is_ok());
     }
 
