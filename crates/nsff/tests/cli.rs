@@ -228,6 +228,10 @@ fn a_jumping_camera_skips_the_flow() {
         text.contains("\"time_jitter\": 0.5") && text.contains("\"render_step_scale\": 0.5"),
         "a jumping camera jitters its rays' times and renders at half the training step"
     );
+    assert!(
+        text.contains("\"time_resolution\": 5"),
+        "a jumping camera's time cells span two frames (12 frames: 11 gaps, 5 cells)"
+    );
     let eval = run(nsff().arg("eval").arg(&run_dir));
     assert!(mean_psnr(&eval).is_finite());
     // A finer render step, asked for at evaluation, marches more samples per ray (twice as
