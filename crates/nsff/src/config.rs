@@ -246,6 +246,16 @@ pub struct NsffConfig {
     pub frames_per_batch: usize,
 }
 
+/// A render step scale must be a positive number (a zero step would put every render sample at
+/// one point); `name` is what the user wrote it as, a setting or a flag.
+pub fn check_render_step_scale(name: &str, scale: f32) -> Result<(), String> {
+    if scale.is_finite() && scale > 0.0 {
+        Ok(())
+    } else {
+        Err(format!("{name} must be a positive number, got {scale}"))
+    }
+}
+
 /// Frames per time cell of the space-time grid's finest level for a jumping camera.
 const JUMPING_FRAMES_PER_TIME_CELL: u32 = 2;
 
@@ -380,10 +390,10 @@ impl NsffConfig {
 
     /// Settings for a jumping camera ([`crate::capture`]), after [`NsffConfig::adapt_to`]. Each
     /// time is seen from one viewpoint only, so the space-time grid's coarse levels share their
-    /// features across many frames (their time resolution follows their spatial resolution) and
-    /// only the finest levels resolve single frames (BENCHMARKS.md §8: better on all three
-    /// generated jumping scenes of the tuning set); a ray's time is jittered by up to half a
-    /// frame so that a fine time cell learns from more than one view. Renders between frames
+    /// features across many frames (their time resolution follows their spatial resolution;
+    /// BENCHMARKS.md §8: better on all three generated jumping scenes of the tuning set) and
+    /// even the finest level's time cells span two frames; a ray's time is jittered by up to
+    /// half a frame so that a fine time cell learns from more than one view. Renders between frames
     /// query the field directly: splatting follows a scene flow that nothing trains here. The
     /// static warm-up ends early when the occupancy grid fills up again (`warm_up_exit_rise`;
     /// BENCHMARKS.md §8: where most of the scene moves, the warm-up's fog cost 1-2 dB). The
@@ -431,13 +441,7 @@ impl NsffConfig {
                 self.time_jitter
             ));
         }
-        if !(self.render_step_scale.is_finite() && self.render_step_scale > 0.0) {
-            return Err(format!(
-                "render_step_scale must be a positive number, got {}",
-                self.render_step_scale
-            ));
-        }
-        Ok(())
+        check_render_step_scale("render_step_scale", self.render_step_scale)
     }
 
     /// Weight multiplier of the decaying terms at `step` and training `progress` in [0, 1].

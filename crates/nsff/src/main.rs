@@ -14,7 +14,7 @@ use nerf::export::{
 use nerf::render::FrameWriter;
 use nerf_data::error::DataError;
 use nerf_data::{Camera, Dataset, Image, LoadOptions};
-use nsff::config::{DynamicMode, NsffConfig, TimeInterp};
+use nsff::config::{DynamicMode, NsffConfig, TimeInterp, check_render_step_scale};
 use nsff::eval::{evaluate_with_depth, render_at};
 use nsff::export::SpaceTimeVolume;
 use nsff::model::NsffModel;
@@ -311,12 +311,7 @@ fn open_run(run_dir: &Path, time_interp: Option<TimeInterp>, render_step_scale: 
         t.model.settings.time_interp = ti;
     }
     if let Some(scale) = render_step_scale {
-        if !(scale.is_finite() && scale > 0.0) {
-            return Err(ModelError::usage(
-                run_dir,
-                format!("--render-step-scale must be a positive number, got {scale}"),
-            ));
-        }
+        check_render_step_scale("--render-step-scale", scale).map_err(|m| ModelError::usage(run_dir, m))?;
         t.model.settings.render_step_scale = scale;
     }
     let cfg = t.state.config;
