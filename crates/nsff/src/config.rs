@@ -244,6 +244,12 @@ pub struct NsffConfig {
     /// before it read 1).
     #[serde(default = "default_frames_per_batch")]
     pub frames_per_batch: usize,
+    /// Neighbouring frames a video's space-time step warps to (the warped render, cycle and
+    /// optical-flow terms): 2 is NSFF's both neighbours; 1 draws one of them at random and
+    /// doubles its terms' weight (the same loss in expectation), saving a dynamic-field query
+    /// of every sample and its backward pass.
+    #[serde(default = "default_warp_neighbours")]
+    pub warp_neighbours: usize,
 }
 
 /// A render step scale must be a positive number (a zero step would put every render sample at
@@ -289,6 +295,10 @@ fn default_static_batch_scale() -> f32 {
 
 fn default_space_time_share() -> f32 {
     1.0
+}
+
+fn default_warp_neighbours() -> usize {
+    2
 }
 
 fn default_min_rays() -> usize {
@@ -361,6 +371,7 @@ impl NsffConfig {
             warm_up_exit_restart: false,
             occupancy_time_bins: default_occupancy_time_bins(),
             frames_per_batch: default_frames_per_batch(),
+            warp_neighbours: default_warp_neighbours(),
         }
     }
 
@@ -440,6 +451,9 @@ impl NsffConfig {
                 "time_jitter must be 0 or more frames, got {}",
                 self.time_jitter
             ));
+        }
+        if self.warp_neighbours == 0 {
+            return Err("warp_neighbours must be 1 or 2 (0 would drop the scene flow's warp terms)".into());
         }
         check_render_step_scale("render_step_scale", self.render_step_scale)
     }

@@ -18,7 +18,7 @@ use nerf_core::profile::span;
 use nerf_core::rays::Rays;
 use nerf_core::render::{Background, Component, RenderOutput, render};
 use nerf_core::sampler::RaySamples;
-use rand::{Rng, SeedableRng, rngs::StdRng};
+use rand::{Rng, SeedableRng, rngs::StdRng, seq::SliceRandom};
 
 use crate::checkpoint::{read_model, write_model};
 use crate::config::{DynamicMode, NsffConfig};
@@ -551,7 +551,12 @@ impl NsffTrainer {
         }
 
         // Neighbouring frames: warped renders, disocclusion weights, cycle and flow terms.
-        for (j, forward) in neighbours(k, v.frames.len(), v.camera_path.is_jumping()) {
+        let (warp_to, warp_weight) = pick_neighbours(
+            neighbours(k, v.frames.len(), v.camera_path.is_jumping()),
+            self.cfg.warp_neighbours,
+            rng,
+        );
+        for (j, forward) in warp_to {
             let (flow, prob, x_j, flowed) = if forward {
                 (
                     flow_next.clone(),
@@ -567,8 +572,9 @@ impl NsffTrainer {
                     X_PREV,
                 )
             };
-            loss =
-                loss + self.warp_terms(dynamic, &batch, &samples, dirs, (j, forward), (flow, prob, x_j))?;
+            loss = loss
+                + self.warp_terms(dynamic, &batch, &samples, dirs, (j, forward), (flow, prob, x_j))?
+                    * warp_weight;
             // Projected scene flow against the 2-D optical flow of this pixel.
             let prior = if forward { &v.flow_fwd[k] } else { &v.flow_bwd[k] };
             if let (Some(of), true) = (prior, wts.optical_flow > 0.0) {
@@ -590,7 +596,7 @@ impl NsffTrainer {
                     tgt,
                     mask,
                 )?;
-                loss = loss + l * (wts.optical_flow * decay);
+                loss = loss + l * (wts.optical_flow * decay * warp_weight as f64);
             }
         }
         if !v.camera_path.is_jumping() {
@@ -846,6 +852,19 @@ fn neighbours(k: usize, frames: usize, jumping: bool) -> Vec<(usize, bool)> {
     next.into_iter().chain(prev).collect()
 }
 
+/// At most `keep` of `all` neighbours, drawn at random when there are more, and the weight that
+/// keeps their terms' sum the same in expectation (all / kept). Draws nothing from `rng` when all
+/// are kept, so the default's random stream is unchanged.
+fn pick_neighbours(mut all: Vec<(usize, bool)>, keep: usize, rng: &mut StdRng) -> (Vec<(usize, bool)>, f32) {
+    let n = all.len();
+    if keep >= n || keep == 0 {
+        return (all, 1.0);
+    }
+    all.shuffle(rng);
+    all.truncate(keep);
+    (all, n as f32 / keep as f32)
+}
+
 /// Per-sample value whose render the depth prior compares with monocular disparity: 1/t for a
 /// Euclidean ray (t is the camera depth), 1 − t in NDC (t = 1 − near/|z|, so 1 − t is
 /// proportional to the disparity). Either way the rendered value is affine in disparity where
@@ -938,6 +957,25 @@ mod tests {
 
     /// A video's step warps towards both neighbours (one at either end); a jumping camera's
     /// towards none.
+    /// One neighbour of two: drawn at random (both directions come up), weighted 2 so the sum
+    /// of the terms keeps its expectation; where only one exists, or both are kept, weight 1.
+    #[test]
+    fn one_warp_neighbour_is_drawn_and_reweighted() {
+        let mut rng = StdRng::seed_from_u64(3);
+        let both = neighbours(5, 10, false);
+        assert_eq!(pick_neighbours(both.clone(), 2, &mut rng), (both.clone(), 1.0));
+        let mut seen = Vec::new();
+        for _ in 0..32 {
+            let (kept, w) = pick_neighbours(both.clone(), 1, &mut rng);
+            assert_eq!((kept.len(), w), (1, 2.0));
+            assert!(both.contains(&kept[0]));
+            seen.push(kept[0].1);
+        }
+        assert!(seen.contains(&true) && seen.contains(&false), "{seen:?}");
+        let first = neighbours(0, 10, false);
+        assert_eq!(pick_neighbours(first.clone(), 1, &mut rng), (first, 1.0));
+    }
+
     #[test]
     fn warp_neighbours_are_a_video_s_only() {
         assert_eq!(neighbours(0, 5, false), vec![(1, true)]);
