@@ -501,6 +501,16 @@ mod tests {
         assert!(cfg.validate().is_ok());
     }
 
+    /// No warp neighbour at all would silently drop the scene flow's warp terms: refused.
+    #[test]
+    fn warp_neighbours_must_be_at_least_one() {
+        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
+        cfg.warp_neighbours = 0;
+        assert!(cfg.validate().unwrap_err().contains("warp_neighbours"));
+        cfg.warp_neighbours = 1;
+        assert!(cfg.validate().is_ok());
+    }
+
     /// A jumping camera's finest time cells span two frames: 150 frames (149 gaps, as
     /// `adapt_to` sets) give 74 cells, and the grid's finest level has them; never fewer than 1.
     #[test]
