@@ -453,7 +453,9 @@ impl NsffConfig {
             ));
         }
         if self.warp_neighbours == 0 {
-            return Err("warp_neighbours must be 1 or 2 (0 would drop the scene flow's warp terms)".into());
+            return Err(
+                "warp_neighbours must be at least 1 (0 would drop the scene flow's warp terms)".into(),
+            );
         }
         check_render_step_scale("render_step_scale", self.render_step_scale)
     }

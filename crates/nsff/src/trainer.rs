@@ -854,7 +854,8 @@ fn neighbours(k: usize, frames: usize, jumping: bool) -> Vec<(usize, bool)> {
 
 /// At most `keep` of `all` neighbours, drawn at random when there are more, and the weight that
 /// keeps their terms' sum the same in expectation (all / kept). Draws nothing from `rng` when all
-/// are kept, so the default's random stream is unchanged.
+/// are kept, so the default's random stream is unchanged. `keep` 0, which `validate` refuses,
+/// keeps all rather than dividing by zero.
 fn pick_neighbours(mut all: Vec<(usize, bool)>, keep: usize, rng: &mut StdRng) -> (Vec<(usize, bool)>, f32) {
     let n = all.len();
     if keep >= n || keep == 0 {
@@ -955,8 +956,6 @@ mod tests {
         grids.iter().map(|g| g.table()).collect()
     }
 
-    /// A video's step warps towards both neighbours (one at either end); a jumping camera's
-    /// towards none.
     /// One neighbour of two: drawn at random (both directions come up), weighted 2 so the sum
     /// of the terms keeps its expectation; where only one exists, or both are kept, weight 1.
     #[test]
@@ -976,6 +975,8 @@ mod tests {
         assert_eq!(pick_neighbours(first.clone(), 1, &mut rng), (first, 1.0));
     }
 
+    /// A video's step warps towards both neighbours (one at either end); a jumping camera's
+    /// towards none.
     #[test]
     fn warp_neighbours_are_a_video_s_only() {
         assert_eq!(neighbours(0, 5, false), vec![(1, true)]);
