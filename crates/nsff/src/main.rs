@@ -243,6 +243,11 @@ fn train(args: TrainArgs) -> Result<()> {
         common.apply_fresh(&mut cfg.base);
         cfg.dynamic = args.dynamic;
         cfg.time_interp = args.time_interp;
+        // A mistyped or invalid `--set` fails here, before the load and the optical flow
+        // (seconds to minutes); the overrides are applied for good after `adapt_to` below.
+        apply_overrides(&cfg, &common.overrides)
+            .and_then(|c| c.validate())
+            .map_err(|m| ModelError::usage(&common.data, m))?;
         let start = std::time::Instant::now();
         let video = load_video(&cfg, &run_dir, false)?;
         eprintln!(

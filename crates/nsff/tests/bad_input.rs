@@ -48,12 +48,17 @@ fn video(tag: &str, times: &[Option<f64>]) -> PathBuf {
 }
 
 fn train_error(data: &Path) -> String {
+    train_error_with(data, &[])
+}
+
+fn train_error_with(data: &Path, extra: &[&str]) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_nsff"))
         .arg("train")
         .arg(data)
         .arg("--out")
         .arg(data.join("run"))
         .args(["--steps", "1", "--no-render"])
+        .args(extra)
         .output()
         .unwrap();
     assert!(!out.status.success(), "training on bad input succeeded");
@@ -90,4 +95,25 @@ fn malformed_videos_name_the_file_and_the_problem() {
         );
         std::fs::remove_dir_all(data).unwrap();
     }
+}
+
+/// A bad `--set` is refused before the video is loaded and its optical flow computed.
+#[test]
+fn bad_settings_are_refused_before_the_video_is_prepared() {
+    let data = video("set", &[Some(0.0), Some(0.5), Some(1.0)]);
+    for (set, want) in [
+        ("warp_neighbours=0", "warp_neighbours"),
+        ("no_such_setting=1", "no setting 'no_such_setting'"),
+        ("time_jitter=-1", "time_jitter"),
+    ] {
+        let err = train_error_with(&data, &["--set", set]);
+        assert!(err.contains(want), "{set}: {err}");
+        assert!(err.contains(&data.display().to_string()), "{set}: {err}");
+        assert!(
+            !err.contains("optical flow"),
+            "{set}: prepared the video first: {err}"
+        );
+        assert!(!err.contains("loaded and prepared"), "{set}: {err}");
+    }
+    std::fs::remove_dir_all(data).unwrap();
 }
