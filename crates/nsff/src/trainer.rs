@@ -854,8 +854,8 @@ fn neighbours(k: usize, frames: usize, jumping: bool) -> Vec<(usize, bool)> {
 
 /// At most `keep` of `all` neighbours, drawn at random when there are more, and the weight that
 /// keeps their terms' sum the same in expectation (all / kept). Draws nothing from `rng` when all
-/// are kept, so the default's random stream is unchanged. `keep` 0, which `validate` refuses,
-/// keeps all rather than dividing by zero.
+/// are kept (NSFF's `keep` 2, or a jumping camera's none), so those runs' random streams are as
+/// before the option. `keep` 0, which `validate` refuses, keeps all rather than dividing by zero.
 fn pick_neighbours(mut all: Vec<(usize, bool)>, keep: usize, rng: &mut StdRng) -> (Vec<(usize, bool)>, f32) {
     let n = all.len();
     if keep >= n || keep == 0 {
