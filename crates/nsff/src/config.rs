@@ -247,9 +247,9 @@ pub struct NsffConfig {
     #[serde(default = "default_frames_per_batch")]
     pub frames_per_batch: usize,
     /// Neighbouring frames a video's space-time step warps to (the warped render, cycle and
-    /// optical-flow terms): 2 is NSFF's both neighbours; 1 draws one of them at random and
-    /// doubles its terms' weight (the same loss in expectation), saving a dynamic-field query
-    /// of every sample and its backward pass (the default).
+    /// optical-flow terms): 2 is NSFF's both neighbours; 1 (the default) draws one of them at
+    /// random and doubles its terms' weight (the same loss in expectation), saving a
+    /// dynamic-field query of every sample and its backward pass.
     #[serde(default = "default_warp_neighbours")]
     pub warp_neighbours: usize,
 }
@@ -433,8 +433,8 @@ impl NsffConfig {
         }
         self.warm_up_exit_rise = 2.0;
         self.occupancy_time_bins = 8;
-        // The batch shares its settings below were chosen with (a video's halves were screened
-        // on videos only).
+        // Full batches: the settings below were chosen with them (a video's half batches were
+        // screened on videos only).
         self.static_batch_scale = 1.0;
         self.space_time_share = 1.0;
         // Half the samples per step, about 1.5× the steps: better on six of seven generated

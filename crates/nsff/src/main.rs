@@ -216,6 +216,13 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
+/// `cfg` with the `--set` overrides applied and validated; an error names the data folder.
+fn with_overrides(cfg: &NsffConfig, common: &CommonTrainArgs) -> Result<NsffConfig> {
+    apply_overrides(cfg, &common.overrides)
+        .and_then(|c| c.validate().map(|()| c))
+        .map_err(|m| ModelError::usage(&common.data, m))
+}
+
 fn train(args: TrainArgs) -> Result<()> {
     let common = &args.common;
     let run_dir = common.run_dir("nsff-");
@@ -245,9 +252,7 @@ fn train(args: TrainArgs) -> Result<()> {
         cfg.time_interp = args.time_interp;
         // A mistyped or invalid `--set` fails here, before the load and the optical flow
         // (seconds to minutes); the overrides are applied for good after `adapt_to` below.
-        apply_overrides(&cfg, &common.overrides)
-            .and_then(|c| c.validate())
-            .map_err(|m| ModelError::usage(&common.data, m))?;
+        with_overrides(&cfg, common)?;
         let start = std::time::Instant::now();
         let video = load_video(&cfg, &run_dir, false)?;
         eprintln!(
@@ -261,8 +266,7 @@ fn train(args: TrainArgs) -> Result<()> {
                 "note: a jumping camera trains no scene flow; rendering between frames uses --time-interp direct"
             );
         }
-        let cfg = apply_overrides(&cfg, &common.overrides).map_err(|m| ModelError::usage(&common.data, m))?;
-        cfg.validate().map_err(|m| ModelError::usage(&common.data, m))?;
+        let cfg = with_overrides(&cfg, common)?;
         NsffTrainer::new(cfg, video, &run_dir)?
     };
     t.train(true)?;
