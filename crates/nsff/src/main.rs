@@ -48,8 +48,9 @@ enum Command {
         /// setting, `render_step_scale`; smaller is finer and slower).
         #[arg(long)]
         render_step_scale: Option<f32>,
-        /// Render with the static field alone (the dynamic field skipped everywhere) and write
-        /// eval_static.json: tells whether an error comes from the static or the dynamic field.
+        /// Render with the static field alone (its full density, the dynamic field and the blend
+        /// skipped everywhere) and write eval_static.json: tells whether an error comes from the
+        /// static or the dynamic field.
         #[arg(long)]
         static_only: bool,
     },
@@ -147,7 +148,7 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let mut t = open_run(&run_dir, time_interp, render_step_scale)?;
             if static_only {
-                t.model.settings.blend_skip = f32::INFINITY;
+                t.model.settings.static_only = true;
             }
             let name = if static_only { "eval_static" } else { "eval" };
             let r = write_eval(&t, save_images, name)?;

@@ -57,6 +57,9 @@ pub struct RenderSettings {
     /// Samples whose static blend weight b_s is below this skip the dynamic field at inference.
     pub blend_skip: f32,
     pub time_interp: TimeInterp,
+    /// Renders the static field alone, σ_static at full weight with the dynamic field skipped
+    /// (a diagnosis: `nsff eval --static-only`); the combined model scales σ_static by 1 − b.
+    pub static_only: bool,
 }
 
 impl RenderSettings {
@@ -75,6 +78,7 @@ impl RenderSettings {
             render_step_scale: cfg.render_step_scale,
             blend_skip: cfg.blend_skip,
             time_interp: cfg.time_interp,
+            static_only: false,
         }
     }
 }

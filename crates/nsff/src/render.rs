@@ -175,11 +175,17 @@ pub fn render_direct(
         .static_field
         .query(FieldQuery::new(tensor(pos.clone(), 3, &plain), &dirs));
     let mut blend = read_back(st.extras.expect(BLEND), "blend weight")?;
+    // Without the dynamic field the static field renders at full density, as it trains (the
+    // static pipeline's loss) and as the occupancy grid sees it.
+    let dynamic = fields.dynamic.as_ref().filter(|_| !settings.static_only);
+    if dynamic.is_none() {
+        blend.fill(0.0);
+    }
     let mut sigma_dy = vec![0.0f32; s_n];
     let mut rgb_dy = vec![0.0f32; 3 * s_n];
     let mut flow_mag = vec![0.0f32; s_n];
     let mut evaluated = 0usize;
-    if let Some(dynamic) = &fields.dynamic {
+    if let Some(dynamic) = dynamic {
         // b = b_s·g ≤ b_s: where b_s says static, the dynamic field cannot contribute.
         let keep: Vec<usize> = (0..s_n).filter(|&i| blend[i] >= settings.blend_skip).collect();
         evaluated = keep.len();
@@ -252,7 +258,12 @@ pub fn render_splat(
     let last = times.len() - 1;
     let i = (tau.floor().max(0.0) as usize).min(last.saturating_sub(1));
     let r = (tau - i as f32).clamp(0.0, 1.0);
-    let Some(dynamic) = model.fields.dynamic.as_ref().map(|d| d.valid()) else {
+    let dynamic = model
+        .fields
+        .dynamic
+        .as_ref()
+        .filter(|_| !model.settings.static_only);
+    let Some(dynamic) = dynamic.map(|d| d.valid()) else {
         return render_direct(model, &rays, times[i], dataset.background, device);
     };
     let st_field = model.fields.static_field.valid();
@@ -395,23 +406,28 @@ mod tests {
     use nerf_core::readback::{assert_close, host};
     use nerf_data::{Format, Intrinsics, Pose};
 
+    /// An untrained model with both fields at three times, no occupancy grid, no blend skip and
+    /// b_s = 0.5 (so both components show), and the rays of a 12×10 camera looking at it.
+    fn untrained_scene(dev: &Device) -> (NsffConfig, SceneBounds, NsffModel, Rays) {
+        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
+        cfg.samples = 24;
+        cfg.blend_skip = 0.0;
+        cfg.blend_init_logit = 0.0;
+        let bounds = SceneBounds::object(2.0, 6.0, [[-1.5; 3], [1.5; 3]]);
+        let mut model = NsffModel::new(&cfg, bounds.clone(), vec![0.0, 0.5, 1.0], true, dev);
+        model.occupancy = None;
+        let pose = Pose::look_at([0.3, 0.2, 3.5], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+        let camera = Camera::new(Intrinsics::centered(14.0, 12, 10), pose);
+        (cfg, bounds, model, nerf_data::rays::camera_rays(&camera))
+    }
+
     /// The training step's combined render (autodiff device, both fields queried everywhere) and
     /// the inference render (plain device, blend skip off) agree for the same parameters and
     /// unjittered samples, at a frame time and between frames.
     #[test]
     fn training_and_inference_renders_agree_on_and_between_frames() {
-        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
-        cfg.samples = 24;
-        cfg.blend_skip = 0.0;
-        // A blend weight well inside (0, 1), so both components show.
-        cfg.blend_init_logit = 0.0;
-        let bounds = SceneBounds::object(2.0, 6.0, [[-1.5; 3], [1.5; 3]]);
         let dev = Device::flex().autodiff();
-        let mut model = NsffModel::new(&cfg, bounds.clone(), vec![0.0, 0.5, 1.0], true, &dev);
-        model.occupancy = None;
-        let pose = Pose::look_at([0.3, 0.2, 3.5], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
-        let camera = Camera::new(Intrinsics::centered(14.0, 12, 10), pose);
-        let rays = nerf_data::rays::camera_rays(&camera);
+        let (cfg, bounds, model, rays) = untrained_scene(&dev);
         let bg = Some([0.9f32, 0.5, 0.1]);
         let dynamic = model.fields.dynamic.as_ref().unwrap();
         for time in [0.5f32, 0.3] {
@@ -435,6 +451,50 @@ mod tests {
                 assert_close(&format!("t = {time}, {name}"), &a, &b, 1e-5);
             }
         }
+    }
+
+    /// The static field alone (`nsff eval --static-only`, and a model without a dynamic field)
+    /// renders σ_static at full weight: the static pipeline's render of the same field on the
+    /// same samples, whatever the blend weight says.
+    #[test]
+    fn the_static_field_alone_renders_at_full_density() {
+        let dev = Device::flex();
+        // b_s = 0.5: the combined model would halve the static density.
+        let (cfg, bounds, mut model, rays) = untrained_scene(&dev);
+        let bg = Some([0.9f32, 0.5, 0.1]);
+        let samples = sample_rays(&rays, &bounds, cfg.samples, true, None, None);
+        let x = tensor(samples.positions(&rays), 3, &dev);
+        let st = model
+            .fields
+            .static_field
+            .query(FieldQuery::new(x, &samples.per_sample3(&rays.viewdirs())));
+        let blend = host(st.extras.expect(BLEND));
+        assert!(blend.iter().all(|&b| (b - 0.5).abs() < 0.2), "b_s near 0.5");
+        let want = render(
+            &rays,
+            &samples,
+            &[Component::new(st.sigma, st.rgb)],
+            &Background::from_option(bg),
+            render_options(&model),
+            &dev,
+        );
+        let combined = render_direct(&model, &rays, 0.5, bg, &dev).unwrap();
+        model.settings.static_only = true;
+        let static_only = render_direct(&model, &rays, 0.5, bg, &dev).unwrap();
+        model.settings.static_only = false;
+        model.fields.dynamic = None;
+        let no_dynamic = render_direct(&model, &rays, 0.5, bg, &dev).unwrap();
+        for (name, got) in [("--static-only", &static_only), ("no dynamic field", &no_dynamic)] {
+            assert_close(name, &host(want.rgb.clone()), &got.rgb, 1e-5);
+            assert_close(name, &host(want.opacity.clone()), &got.opacity, 1e-5);
+        }
+        // The check can fail: the combined model's render differs.
+        let gap = host(want.opacity.clone())
+            .iter()
+            .zip(&combined.opacity)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(gap > 1e-3, "the combined render matched the static one: {gap}");
     }
 
     /// At a frame time (r = 0) no sample moves and each lands on its own pixel centre, so NSFF's
