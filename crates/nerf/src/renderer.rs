@@ -40,6 +40,12 @@ impl SceneBounds {
             open_far: false,
         }
     }
+
+    /// The box's longest side: a length of the scene.
+    pub fn extent(&self) -> f32 {
+        let [lo, hi] = self.aabb;
+        (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f32::max)
+    }
 }
 
 /// Training renders jitter their samples (and may add density noise); inference renders do not.

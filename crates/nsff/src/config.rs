@@ -23,7 +23,7 @@ pub struct LossWeights {
     pub optical_flow: f64,
     /// Scale- and shift-invariant single-view depth; decays. Used only with disparity priors.
     pub depth: f64,
-    /// One-sided entropy of the blend weight.
+    /// One-sided entropy of the blend weight. NSFF's 1e-3; a video takes 0 ([`NsffConfig::new`]).
     pub entropy: f64,
     /// Sparsity of the blended dynamic density b·σ_dy (optical depth per march step) at random
     /// occupied points at the step's time: space that no training view sees at that time stays
@@ -43,6 +43,11 @@ pub struct LossWeights {
     /// explains a pixel as well, the pixel goes to it; movers pay and stay dynamic.
     #[serde(default)]
     pub dynamic_share: f64,
+    /// Spread of the dynamic-only render's weights along each ray ([`crate::losses::
+    /// depth_spread`]): each time's geometry is seen by one camera, which a density smeared
+    /// along its rays fits as well as a surface.
+    #[serde(default)]
+    pub depth_spread: f64,
 }
 
 fn default_render_step_scale() -> f32 {
@@ -76,6 +81,7 @@ impl Default for LossWeights {
             hidden: default_hidden(),
             still_dynamic: default_still_dynamic(),
             dynamic_share: 0.0,
+            depth_spread: 0.0,
         }
     }
 }
@@ -231,7 +237,8 @@ pub struct NsffConfig {
     pub time_jitter: f32,
     /// The march step of renders (evaluation, `nsff render`, the viewer) as a fraction of the
     /// training step. Training marches coarsely because a sample there costs four field queries
-    /// and a backward pass; a render's sample costs two queries (1: the training step).
+    /// and a backward pass; a render's sample costs two queries (1: the training step, which
+    /// checkpoints from before it read; 0.5 for new runs, BENCHMARKS.md §6 and §8).
     #[serde(default = "default_render_step_scale")]
     pub render_step_scale: f32,
     /// Occupancy grids over time: the training times' range split into this many bins, each
@@ -284,6 +291,14 @@ const VIDEO_STATIC_BATCH_SCALE: f32 = 0.5;
 const VIDEO_SPACE_TIME_SHARE: f32 = 0.5;
 const VIDEO_SPARSITY_POINTS: usize = 1024;
 const VIDEO_WARP_NEIGHBOURS: usize = 1;
+
+const RENDER_STEP_SCALE: f32 = 0.5;
+
+// No entropy term on a video's blend: with NSFF's 1e-3 the blend closes during the space-time
+// phase on half the tuning videos and the dynamic field draws nothing there. Without it the
+// dynamic field takes part on all six; mean PSNR +0.23 dB at 300 s, better on four of six
+// (BENCHMARKS.md §6, thirteenth session).
+const VIDEO_ENTROPY: f64 = 0.0;
 
 fn default_sparsity_points() -> usize {
     2048
@@ -353,13 +368,19 @@ impl NsffConfig {
                 base_resolution: 16,
                 finest_resolution: 256,
                 time_resolution: None,
-                time_follows_space: false,
+                // Coarse levels share their features across frames, only the finest resolve
+                // single frames: better on every generated jumping scene (BENCHMARKS.md §8) and
+                // on five of six tuning videos, equal on the sixth (§6, fifteenth session).
+                time_follows_space: true,
             },
             dynamic_encoding: SpaceTimeEncoding::default(),
             dynamic_width: default_dynamic_width(),
             dynamic_sh_degree: default_dynamic_sh_degree(),
             flow_scale: 0.25,
-            weights: LossWeights::default(),
+            weights: LossWeights {
+                entropy: VIDEO_ENTROPY,
+                ..LossWeights::default()
+            },
             decay_steps: 25_000,
             decay_fraction: default_decay_fraction(),
             dynamic: DynamicMode::Auto,
@@ -378,7 +399,9 @@ impl NsffConfig {
             sparsity_points: VIDEO_SPARSITY_POINTS,
             error_rays: 0.0,
             time_jitter: 0.0,
-            render_step_scale: default_render_step_scale(),
+            // Half the training step: better on every generated jumping scene (BENCHMARKS.md §8)
+            // and on every video of the tuning set (§6, fifteenth session).
+            render_step_scale: RENDER_STEP_SCALE,
             warm_up_exit_rise: 0.0,
             warm_up_exit_restart: false,
             occupancy_time_bins: default_occupancy_time_bins(),
@@ -412,19 +435,17 @@ impl NsffConfig {
     }
 
     /// Settings for a jumping camera ([`crate::capture`]), after [`NsffConfig::adapt_to`]. Each
-    /// time is seen from one viewpoint only, so the space-time grid's coarse levels share their
-    /// features across many frames (their time resolution follows their spatial resolution;
-    /// BENCHMARKS.md §8: better on all three generated jumping scenes of the tuning set) and
-    /// even the finest level's time cells span two frames; a ray's time is jittered by up to
-    /// half a frame so that a fine time cell learns from more than one view. Renders between frames
-    /// query the field directly: splatting follows a scene flow that nothing trains here. The
+    /// time is seen from one viewpoint only, so even the space-time grid's finest time cells
+    /// span two frames (its coarse levels share theirs across many frames, as a video's do); a
+    /// ray's time is jittered by up to half a frame so that a fine time cell learns from more
+    /// than one view. Renders between frames query the field directly: splatting follows a scene
+    /// flow that nothing trains here. The
     /// static warm-up ends early when the occupancy grid fills up again (`warm_up_exit_rise`;
     /// BENCHMARKS.md §8: where most of the scene moves, the warm-up's fog cost 1-2 dB). The
     /// occupancy grid has 8 time bins (BENCHMARKS.md §8: level quality on the tuning set, fewer
     /// samples per ray where things move), and steps take half the static pipeline's samples.
     /// Returns whether it had to switch `time_interp`.
     pub fn adapt_to_jumping_camera(&mut self) -> bool {
-        self.dynamic_grid.time_follows_space = true;
         // Time cells two frames long at the finest level (so every level's are twice as long):
         // each frame is seen from one viewpoint, and a cell then learns from two. Better on all
         // seven generated jumping scenes at 120 s (BENCHMARKS.md §8).
@@ -437,6 +458,7 @@ impl NsffConfig {
         // screened on videos only).
         self.static_batch_scale = 1.0;
         self.space_time_share = 1.0;
+        self.weights.entropy = LossWeights::default().entropy;
         // Half the samples per step, about 1.5× the steps: better on six of seven generated
         // jumping scenes at 120 s (BENCHMARKS.md §8).
         self.base.fast.target_samples = 4096;
@@ -445,10 +467,9 @@ impl NsffConfig {
         self.sparsity_points = 512;
         // Half the rays where the frame rendered worst: better on six of seven (BENCHMARKS.md §8).
         self.error_rays = 0.5;
-        // Each ray's time within half a frame of its frame's: better on six of seven, and a
-        // render marching at half the training step: better on seven of seven (BENCHMARKS.md §8).
+        // Each ray's time within half a frame of its frame's: better on six of seven
+        // (BENCHMARKS.md §8).
         self.time_jitter = 0.5;
-        self.render_step_scale = 0.5;
         let splat = self.time_interp == TimeInterp::Splat;
         self.time_interp = TimeInterp::Direct;
         splat
@@ -519,16 +540,20 @@ mod tests {
         assert!(cfg.validate().is_ok());
     }
 
-    /// A video's step takes half batches and one warp neighbour; a jumping camera, whose
-    /// settings were chosen with full batches, keeps them.
+    /// A video's step takes half batches and one warp neighbour, and its blend no entropy term;
+    /// a jumping camera, whose settings were chosen with full batches and the term, keeps them.
+    /// Both share time on the space-time grid's coarse levels and render at half the step.
     #[test]
     fn videos_halve_the_batches_and_jumping_cameras_keep_them() {
         let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
         assert_eq!((cfg.static_batch_scale, cfg.space_time_share), (0.5, 0.5));
         assert_eq!((cfg.sparsity_points, cfg.warp_neighbours), (1024, 1));
+        assert_eq!((cfg.weights.entropy, cfg.render_step_scale), (0.0, 0.5));
+        assert!(cfg.dynamic_grid.time_follows_space);
         cfg.adapt_to_jumping_camera();
         assert_eq!((cfg.static_batch_scale, cfg.space_time_share), (1.0, 1.0));
         assert_eq!(cfg.sparsity_points, 512);
+        assert_eq!(cfg.weights.entropy, 1e-3);
     }
 
     /// No warp neighbour at all would silently drop the scene flow's warp terms: refused.

@@ -69,6 +69,18 @@ pub fn scale_shift_invariant(pred: Tensor<2>, target: &[f32]) -> Result<Option<T
     Ok(Some(mse(centred / spread, t_norm)))
 }
 
+/// Spread of each ray's weights along it: Σ w·t² − (Σ w·t)²/Σ w, the ray's opacity times the
+/// variance of the ray parameter t under its normalised weights, averaged over the rays and
+/// divided by `scale`² (a length of the scene, so that the weight does not depend on its units).
+/// `depth` = Σ w·t, `depth_sq` = Σ w·t² and `opacity` = Σ w are `[R, 1]` composited channels. A
+/// density smeared along a training camera's rays fits that view as well as a surface does, and
+/// shows as a cloud from any other viewpoint; this term asks for the surface.
+pub fn depth_spread(depth: Tensor<2>, depth_sq: Tensor<2>, opacity: Tensor<2>, scale: f32) -> Tensor<1> {
+    let spread = depth_sq - depth.powi_scalar(2) / opacity.clamp_min(1e-3);
+    // Non-negative by Cauchy–Schwarz; the clamp only removes rounding.
+    spread.clamp_min(0.0).mean() / (scale * scale)
+}
+
 /// Cycle consistency of the scene flow: the flow back from the warped point, `back` `[S, 3]`,
 /// should undo the flow that got there, `flow` `[S, 3]`, where the point is not disoccluded:
 /// Σ (1 − p)·|flow + back| / (Σ (1 − p)·3), `prob` `[S, 1]`.
@@ -361,6 +373,58 @@ mod tests {
                 g[i]
             );
         }
+    }
+
+    /// The depth spread from the shared render's channels (Σ w·t, Σ w·t², Σ w) equals its
+    /// definition over compositing weights recomputed in f64; a thin surface spreads far less
+    /// than the same opacity smeared along the ray.
+    #[test]
+    fn depth_spread_matches_f64_weights() {
+        use nerf_core::render::{Background, Component, RenderOptions, render};
+        let dev = Device::flex();
+        // Two rays along −z from the origin, eight samples of length 0.25 from t = 2: a thin
+        // surface (one dense sample) and a smear.
+        let mut rays = nerf_core::rays::Rays::with_capacity(2);
+        let mut samples = RaySamples::with_rays(2);
+        let (n, delta) = (8, 0.25f32);
+        let sigma = [
+            [0.0f32, 0.0, 0.0, 40.0, 0.0, 0.0, 0.0, 0.0],
+            [0.8, 0.8, 0.8, 0.8, 0.8, 0.8, 0.8, 0.8],
+        ];
+        for _ in 0..2 {
+            rays.push([0.0; 3], [0.0, 0.0, -1.0]);
+            for i in 0..n {
+                let t0 = 2.0 + delta * i as f32;
+                samples.push(t0, t0 + delta, t0 + 0.5 * delta);
+            }
+            samples.finish_ray();
+        }
+        let t_sq: Vec<f32> = samples.t.iter().map(|t| t * t).collect();
+        let out = render(
+            &rays,
+            &samples,
+            &[Component::channels_only(t2(sigma.as_flattened(), 1, &dev)).with("t_sq", t2(&t_sq, 1, &dev))],
+            &Background::None,
+            RenderOptions::default(),
+            &dev,
+        );
+        let scale = 2.0;
+        let spread = |r: usize| {
+            let (mut tau, mut o, mut d, mut d2) = (0.0f64, 0.0, 0.0, 0.0);
+            for i in 0..n {
+                let sd = sigma[r][i] as f64 * delta as f64;
+                let w = (-tau).exp() * (1.0 - (-sd).exp());
+                let t = samples.t[r * n + i] as f64;
+                (o, d, d2) = (o + w, d + w * t, d2 + w * t * t);
+                tau += sd;
+            }
+            d2 - d * d / o
+        };
+        let want = 0.5 * (spread(0) + spread(1)) / (scale * scale) as f64;
+        let t_sq = out.expect("t_sq");
+        let got = depth_spread(out.depth, t_sq, out.opacity, scale).into_scalar::<f32>() as f64;
+        assert!((got - want).abs() < 1e-4 * want.max(1e-3), "{got} against {want}");
+        assert!(spread(0) < 1e-3 * spread(1), "{} {}", spread(0), spread(1));
     }
 
     /// The hidden weights against transmittance recomputed in f64 from its definition,

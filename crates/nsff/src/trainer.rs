@@ -527,14 +527,24 @@ impl NsffTrainer {
         let x_next = x.clone() + flow_next.clone();
         let x_prev = x.clone() + flow_prev.clone();
         let disparity = tensor(sample_disparity(&samples.t, ds.ndc.is_some()), 1, dev);
-        let dyn_only = self.render(
-            rays,
-            &samples,
-            &[Component::new(dy.sigma.clone(), dy.rgb.clone())
-                .with(X_NEXT, x_next.clone())
-                .with(X_PREV, x_prev.clone())
-                .with(DISPARITY, disparity)],
-        );
+        let mut dyn_component = Component::new(dy.sigma.clone(), dy.rgb.clone())
+            .with(X_NEXT, x_next.clone())
+            .with(X_PREV, x_prev.clone())
+            .with(DISPARITY, disparity);
+        if wts.depth_spread > 0.0 {
+            let t_sq = samples.t.iter().map(|t| t * t).collect();
+            dyn_component = dyn_component.with(DEPTH_SQ, tensor(t_sq, 1, dev));
+        }
+        let dyn_only = self.render(rays, &samples, &[dyn_component]);
+        if wts.depth_spread > 0.0 {
+            let spread = losses::depth_spread(
+                dyn_only.depth.clone(),
+                dyn_only.expect(DEPTH_SQ),
+                dyn_only.opacity.clone(),
+                self.model.bounds.extent(),
+            );
+            loss = loss + spread * wts.depth_spread;
+        }
         let dyn_photo = if self.cfg.dynamic_photo_masked {
             let moving = batch.per_ray(|k, p| f32::from(u8::from(v.motion_masks[k][p as usize])));
             losses::wmse(dyn_only.rgb.clone(), target.clone(), tensor(moving, 1, dev))
@@ -602,7 +612,9 @@ impl NsffTrainer {
         if !v.camera_path.is_jumping() {
             loss = loss + self.scene_flow_priors(dy, x, &x_next, &x_prev, &samples);
         }
-        loss = loss + losses::entropy(b_s * gate) * wts.entropy;
+        if wts.entropy > 0.0 {
+            loss = loss + losses::entropy(b_s * gate) * wts.entropy;
+        }
         if wts.sparsity > 0.0 {
             let sparse = span("nsff_sparsity", || self.sparsity(dynamic, v.times[k], rng))?;
             loss = loss + sparse * wts.sparsity;
@@ -833,11 +845,13 @@ impl NsffTrainer {
 const WARM_UP_EXIT_MIN_RISE: f32 = 0.1;
 
 /// Channels of the training renders beyond colour: the flowed points Σw(x + f) towards the next
-/// and previous frame, the disparity-like value of the depth prior, and the warped render's
-/// visibility weight.
+/// and previous frame, the disparity-like value of the depth prior, Σw·t² of the depth spread,
+/// and the warped render's visibility weight.
 const X_NEXT: &str = "x_next";
 const X_PREV: &str = "x_prev";
 const DISPARITY: &str = "disparity";
+/// Σ w·t² of the dynamic-only render, for `weights.depth_spread`.
+const DEPTH_SQ: &str = "depth_sq";
 const VISIBLE: &str = "visible";
 
 /// The neighbours of frame `k` (of `frames`) that a step's warp terms compare it with, each

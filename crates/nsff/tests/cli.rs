@@ -203,10 +203,6 @@ fn a_jumping_camera_skips_the_flow() {
     // The jumping camera's settings, as the checkpoint records them, and why each is there.
     let settings = [
         (
-            "\"time_follows_space\": true",
-            "its space-time grid shares time on its coarse levels",
-        ),
-        (
             "\"time_interp\": \"direct\"",
             "it renders between frames by querying the field",
         ),
