@@ -3,7 +3,12 @@
 //! `cargo run --release -p nsff --example mask_recall -- DIR [DIR ...]`.
 //!
 //! Recall: share of true mover pixels inside the mask; precision: share of mask pixels on a
-//! mover; both pooled over all frames, for the raw mask and dilated by 2 and 4 pixels.
+//! mover; both pooled over all frames, for the raw mask and dilated by 2 and 4 pixels. "still in
+//! mask": static pixels inside the raw mask, as a share of all pixels (the static batch never
+//! trains them). `MASK_THRESHOLDS=0.5,1,2` scores several mask thresholds (pixels of epipolar
+//! error; default 0.5, NSFF's `mask_threshold_px`) on one flow computation; `MASK_PNG_DIR=D`
+//! also writes each scene's frame-0 mask over its image to `D/<scene>_<threshold>.png` (masked
+//! pixels red where the generator says static, green on a mover).
 
 use std::path::Path;
 
@@ -30,20 +35,39 @@ fn dilate(mask: &[bool], w: usize, h: usize, r: i64) -> Vec<bool> {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let thresholds: Vec<f32> = std::env::var("MASK_THRESHOLDS")
+        .unwrap_or_else(|_| "0.5".into())
+        .split(',')
+        .map(|t| t.trim().parse())
+        .collect::<Result<_, _>>()?;
     println!(
-        "scene | motion found (moving share) | true mover share | mask share | recall r0 / r2 / r4 | precision r0 / r2 / r4"
+        "scene | mask threshold | motion found (moving share) | true mover share | mask share | still in mask | recall r0 / r2 / r4 | precision r0 / r2 / r4"
     );
     for dir in std::env::args().skip(1) {
         let dir = Path::new(&dir);
+        let cache = std::env::temp_dir().join(format!("mask-recall-{}", std::process::id()));
+        for &threshold in &thresholds {
+            score(dir, &cache, threshold)?;
+        }
+        let _ = std::fs::remove_dir_all(&cache);
+    }
+    Ok(())
+}
+
+/// One line of the table: the masks at `threshold` px, the flow cached in `cache`.
+fn score(dir: &Path, cache: &Path, threshold: f32) -> Result<(), Box<dyn std::error::Error>> {
+    {
         let scene = nerf_synth::Scene::load(dir)?;
         let ds = nerf_data::load::load_video(dir, &LoadOptions::default())?;
-        let cache = std::env::temp_dir().join(format!("mask-recall-{}", std::process::id()));
-        let video = nsff::video::prepare(ds, &cache, (1.0, 0.5), true)?;
-        let _ = std::fs::remove_dir_all(&cache);
+        let video = nsff::video::prepare(ds, cache, (1.0, threshold), true)?;
         let movers = scene.moving_objects();
         let (mut truth, mut total) = (0usize, 0usize);
         let mut hit = [0usize; 3];
         let mut masked = [0usize; 3];
+        let png_dir = std::env::var_os("MASK_PNG_DIR").map(std::path::PathBuf::from);
+        if let Some(d) = &png_dir {
+            std::fs::create_dir_all(d)?;
+        }
         for (k, &v) in video.frames.iter().enumerate() {
             let view = &video.dataset.views[v];
             let (w, h) = (view.image.width as usize, view.image.height as usize);
@@ -54,6 +78,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 .iter()
                 .map(|&i| i >= 0 && movers.contains(&(i as usize)))
                 .collect();
+            if let (0, Some(d)) = (k, &png_dir) {
+                let name = dir
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                let mut img = image::RgbImage::new(w as u32, h as u32);
+                for (p, px) in img.pixels_mut().enumerate() {
+                    let c = view.image.pixel(p);
+                    let grey = (255.0 * (c[0] + c[1] + c[2]) / 3.0).clamp(0.0, 255.0) as u8;
+                    *px = match (video.motion_masks[k][p], gt[p]) {
+                        (true, true) => image::Rgb([0, 200, 0]),
+                        (true, false) => image::Rgb([230, 0, 0]),
+                        _ => image::Rgb([grey, grey, grey]),
+                    };
+                }
+                img.save(d.join(format!("{name}_{threshold}.png")))?;
+            }
             truth += gt.iter().filter(|&&g| g).count();
             total += gt.len();
             for (j, r) in [0, 2, 4].into_iter().enumerate() {
@@ -64,12 +105,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
         println!(
-            "{} | {} ({:.2} %) | {:.1} % | {:.1} % | {:.0} / {:.0} / {:.0} % | {:.0} / {:.0} / {:.0} %",
+            "{} | {threshold} | {} ({:.2} %) | {:.1} % | {:.1} % | {:.1} % | {:.0} / {:.0} / {:.0} % | {:.0} / {:.0} / {:.0} %",
             dir.display(),
             video.has_motion,
             100.0 * video.moving_fraction.unwrap_or(f32::NAN),
             pct(truth, total),
             pct(masked[0], total),
+            pct(masked[0] - hit[0], total),
             pct(hit[0], truth),
             pct(hit[1], truth),
             pct(hit[2], truth),
