@@ -8,7 +8,8 @@
 //! trains them). `MASK_THRESHOLDS=0.5,1,2` scores several mask thresholds (pixels of epipolar
 //! error; default 0.5, NSFF's `mask_threshold_px`) on one flow computation; `MASK_PNG_DIR=D`
 //! also writes each scene's frame-0 mask over its image to `D/<scene>_<threshold>.png` (masked
-//! pixels red where the generator says static, green on a mover).
+//! pixels red where the generator says static, green on a mover); with `MASK_PNG_ALL=1` every
+//! frame, as `D/<scene>_<threshold>_<frame>.png`.
 
 use std::path::Path;
 
@@ -68,6 +69,7 @@ fn score(dir: &Path, cache: &Path, threshold: f32) -> Result<(), Box<dyn std::er
         if let Some(d) = &png_dir {
             std::fs::create_dir_all(d)?;
         }
+        let all_frames = std::env::var_os("MASK_PNG_ALL").is_some();
         for (k, &v) in video.frames.iter().enumerate() {
             let view = &video.dataset.views[v];
             let (w, h) = (view.image.width as usize, view.image.height as usize);
@@ -78,7 +80,7 @@ fn score(dir: &Path, cache: &Path, threshold: f32) -> Result<(), Box<dyn std::er
                 .iter()
                 .map(|&i| i >= 0 && movers.contains(&(i as usize)))
                 .collect();
-            if let (0, Some(d)) = (k, &png_dir) {
+            if let (true, Some(d)) = (k == 0 || all_frames, &png_dir) {
                 let name = dir
                     .file_name()
                     .map(|n| n.to_string_lossy().into_owned())
@@ -93,7 +95,12 @@ fn score(dir: &Path, cache: &Path, threshold: f32) -> Result<(), Box<dyn std::er
                         _ => image::Rgb([grey, grey, grey]),
                     };
                 }
-                img.save(d.join(format!("{name}_{threshold}.png")))?;
+                let frame = if all_frames {
+                    format!("_{k:03}")
+                } else {
+                    String::new()
+                };
+                img.save(d.join(format!("{name}_{threshold}{frame}.png")))?;
             }
             truth += gt.iter().filter(|&&g| g).count();
             total += gt.len();

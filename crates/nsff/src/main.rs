@@ -124,6 +124,10 @@ struct RenderArgs {
     /// setting, `render_step_scale`; smaller is finer and slower).
     #[arg(long)]
     render_step_scale: Option<f32>,
+    /// Render with the static field alone (as `eval --static-only`): what the static field
+    /// has learnt, e.g. at the training cameras.
+    #[arg(long)]
+    static_only: bool,
 }
 
 fn main() -> ExitCode {
@@ -474,7 +478,8 @@ fn render_path(t: &Run, kind: PathKind, frame: usize, n: usize, out: &Path) -> R
 }
 
 fn render(args: RenderArgs) -> Result<()> {
-    let t = open_run(&args.run_dir, args.time_interp, args.render_step_scale)?;
+    let mut t = open_run(&args.run_dir, args.time_interp, args.render_step_scale)?;
+    t.model.settings.static_only = args.static_only;
     let out = args.out.unwrap_or_else(|| args.run_dir.join("render"));
     match args.cameras {
         Some(json) => {

@@ -112,6 +112,28 @@ fn train_eval_and_render_cameras_agree() {
     }
     assert!(renders.join("cameras.gif").exists());
 
+    // The static field alone: `render --static-only`, scored independently, agrees with
+    // `eval --static-only`, and differs from the full model's renders.
+    let static_eval = mean_psnr(&run(nsff().arg("eval").arg(&run_dir).arg("--static-only")));
+    let static_renders = dir.join("cams_static");
+    run(nsff()
+        .arg("render")
+        .arg(&run_dir)
+        .arg("--cameras")
+        .arg(&test_json)
+        .arg("--static-only")
+        .arg("--out")
+        .arg(&static_renders));
+    let static_independent = score_pngs(&static_renders, &data);
+    assert!(
+        (static_independent - static_eval).abs() < 0.05,
+        "{static_independent} vs {static_eval}"
+    );
+    assert!(
+        (static_independent - independent).abs() > 1e-3,
+        "--static-only rendered the full model: {static_independent} vs {independent}"
+    );
+
     // Geometry at one time and the frames' surface points, read back by a generic PLY reader.
     let mesh = dir.join("mesh.ply");
     let out = run(nsff()
