@@ -256,10 +256,11 @@ fn train(args: TrainArgs) -> Result<()> {
         cfg.dynamic = args.dynamic;
         cfg.time_interp = args.time_interp;
         // A mistyped or invalid `--set` fails here, before the load and the optical flow
-        // (seconds to minutes); the overrides are applied for good after `adapt_to` below.
-        with_overrides(&cfg, common)?;
+        // (seconds to minutes); the preparation (motion test, masks) takes its thresholds from
+        // the overridden settings, and the overrides are applied for good after `adapt_to` below.
+        let overridden = with_overrides(&cfg, common)?;
         let start = std::time::Instant::now();
-        let video = load_video(&cfg, &run_dir, false)?;
+        let video = load_video(&overridden, &run_dir, false)?;
         eprintln!(
             "loaded and prepared {} frames in {:.1} s",
             video.frames.len(),

@@ -54,6 +54,16 @@ fn train_eval_and_render_cameras_agree() {
     assert!(stderr.contains("dynamic field on"), "{stderr}");
     // Six frames over the generator's 80° arc: 16° steps, still a video (flow computed).
     assert!(stderr.contains("camera path: smooth video"), "{stderr}");
+    // `--set` reaches the preparation too: masks at an unreachable threshold are empty.
+    assert!(!stderr.contains("motion masks: 0.0%"), "{stderr}");
+    let no_masks = run(nsff()
+        .arg("train")
+        .arg(&data)
+        .arg("--out")
+        .arg(dir.join("no_masks"))
+        .args(["--steps", "1", "--no-render", "--set", "mask_threshold_px=1000"]));
+    let no_masks = String::from_utf8_lossy(&no_masks.stderr);
+    assert!(no_masks.contains("motion masks: 0.0%"), "{no_masks}");
     let after_train = mean_psnr(&out);
     for f in [
         "checkpoint.bin",
