@@ -182,9 +182,7 @@ impl TrainConfig {
 
     /// Scene-dependent settings, once the dataset is known.
     pub fn adapt_to(&mut self, dataset: &Dataset) {
-        let extent = (0..3)
-            .map(|a| dataset.aabb[1][a] - dataset.aabb[0][a])
-            .fold(0.0f32, f32::max);
+        let extent = crate::model::scene_bounds(dataset).extent();
         // About 512 steps across the box's diagonal.
         self.fast.march.step = extent * 3f32.sqrt() / 512.0;
         if dataset.ndc.is_some() {

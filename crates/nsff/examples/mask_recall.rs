@@ -41,6 +41,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .split(',')
         .map(|t| t.trim().parse())
         .collect::<Result<_, _>>()?;
+    let png = match std::env::var_os("MASK_PNG_DIR") {
+        Some(d) => {
+            let dir = std::path::PathBuf::from(d);
+            std::fs::create_dir_all(&dir)?;
+            Some(Pngs {
+                dir,
+                all_frames: std::env::var_os("MASK_PNG_ALL").is_some(),
+            })
+        }
+        None => None,
+    };
     println!(
         "scene | mask threshold | motion found (moving share) | true mover share | mask share | still in mask | recall r0 / r2 / r4 | precision r0 / r2 / r4"
     );
@@ -48,84 +59,88 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let dir = Path::new(&dir);
         let cache = std::env::temp_dir().join(format!("mask-recall-{}", std::process::id()));
         for &threshold in &thresholds {
-            score(dir, &cache, threshold)?;
+            score(dir, &cache, threshold, png.as_ref())?;
         }
         let _ = std::fs::remove_dir_all(&cache);
     }
     Ok(())
 }
 
+/// Where mask overlays go (`MASK_PNG_DIR`), and whether every frame's or frame 0's only.
+struct Pngs {
+    dir: std::path::PathBuf,
+    all_frames: bool,
+}
+
 /// One line of the table: the masks at `threshold` px, the flow cached in `cache`.
-fn score(dir: &Path, cache: &Path, threshold: f32) -> Result<(), Box<dyn std::error::Error>> {
-    {
-        let scene = nerf_synth::Scene::load(dir)?;
-        let ds = nerf_data::load::load_video(dir, &LoadOptions::default())?;
-        let video = nsff::video::prepare(ds, cache, (1.0, threshold), true)?;
-        let movers = scene.moving_objects();
-        let (mut truth, mut total) = (0usize, 0usize);
-        let mut hit = [0usize; 3];
-        let mut masked = [0usize; 3];
-        let png_dir = std::env::var_os("MASK_PNG_DIR").map(std::path::PathBuf::from);
-        if let Some(d) = &png_dir {
-            std::fs::create_dir_all(d)?;
-        }
-        let all_frames = std::env::var_os("MASK_PNG_ALL").is_some();
-        for (k, &v) in video.frames.iter().enumerate() {
-            let view = &video.dataset.views[v];
-            let (w, h) = (view.image.width as usize, view.image.height as usize);
-            let ids = scene
-                .render(&view.camera, view.time.unwrap_or(0.0) as f64)
-                .object_id;
-            let gt: Vec<bool> = ids
-                .iter()
-                .map(|&i| i >= 0 && movers.contains(&(i as usize)))
-                .collect();
-            if let (true, Some(d)) = (k == 0 || all_frames, &png_dir) {
-                let name = dir
-                    .file_name()
-                    .map(|n| n.to_string_lossy().into_owned())
-                    .unwrap_or_default();
-                let mut img = image::RgbImage::new(w as u32, h as u32);
-                for (p, px) in img.pixels_mut().enumerate() {
-                    let c = view.image.pixel(p);
-                    let grey = (255.0 * (c[0] + c[1] + c[2]) / 3.0).clamp(0.0, 255.0) as u8;
-                    *px = match (video.motion_masks[k][p], gt[p]) {
-                        (true, true) => image::Rgb([0, 200, 0]),
-                        (true, false) => image::Rgb([230, 0, 0]),
-                        _ => image::Rgb([grey, grey, grey]),
-                    };
-                }
-                let frame = if all_frames {
-                    format!("_{k:03}")
-                } else {
-                    String::new()
+fn score(
+    dir: &Path,
+    cache: &Path,
+    threshold: f32,
+    png: Option<&Pngs>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let scene = nerf_synth::Scene::load(dir)?;
+    let ds = nerf_data::load::load_video(dir, &LoadOptions::default())?;
+    let video = nsff::video::prepare(ds, cache, (1.0, threshold), true)?;
+    let movers = scene.moving_objects();
+    let (mut truth, mut total) = (0usize, 0usize);
+    let mut hit = [0usize; 3];
+    let mut masked = [0usize; 3];
+    for (k, &v) in video.frames.iter().enumerate() {
+        let view = &video.dataset.views[v];
+        let (w, h) = (view.image.width as usize, view.image.height as usize);
+        let ids = scene
+            .render(&view.camera, view.time.unwrap_or(0.0) as f64)
+            .object_id;
+        let gt: Vec<bool> = ids
+            .iter()
+            .map(|&i| i >= 0 && movers.contains(&(i as usize)))
+            .collect();
+        if let Some(png) = png.filter(|p| k == 0 || p.all_frames) {
+            let name = dir
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let mut img = image::RgbImage::new(w as u32, h as u32);
+            for (p, px) in img.pixels_mut().enumerate() {
+                let c = view.image.pixel(p);
+                let grey = (255.0 * (c[0] + c[1] + c[2]) / 3.0).clamp(0.0, 255.0) as u8;
+                *px = match (video.motion_masks[k][p], gt[p]) {
+                    (true, true) => image::Rgb([0, 200, 0]),
+                    (true, false) => image::Rgb([230, 0, 0]),
+                    _ => image::Rgb([grey, grey, grey]),
                 };
-                img.save(d.join(format!("{name}_{threshold}{frame}.png")))?;
             }
-            truth += gt.iter().filter(|&&g| g).count();
-            total += gt.len();
-            for (j, r) in [0, 2, 4].into_iter().enumerate() {
-                let m = dilate(&video.motion_masks[k], w, h, r);
-                masked[j] += m.iter().filter(|&&x| x).count();
-                hit[j] += m.iter().zip(&gt).filter(|(a, b)| **a && **b).count();
-            }
+            let frame = if png.all_frames {
+                format!("_{k:03}")
+            } else {
+                String::new()
+            };
+            img.save(png.dir.join(format!("{name}_{threshold}{frame}.png")))?;
         }
-        let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
-        println!(
-            "{} | {threshold} | {} ({:.2} %) | {:.1} % | {:.1} % | {:.1} % | {:.0} / {:.0} / {:.0} % | {:.0} / {:.0} / {:.0} %",
-            dir.display(),
-            video.has_motion,
-            100.0 * video.moving_fraction.unwrap_or(f32::NAN),
-            pct(truth, total),
-            pct(masked[0], total),
-            pct(masked[0] - hit[0], total),
-            pct(hit[0], truth),
-            pct(hit[1], truth),
-            pct(hit[2], truth),
-            pct(hit[0], masked[0]),
-            pct(hit[1], masked[1]),
-            pct(hit[2], masked[2]),
-        );
+        truth += gt.iter().filter(|&&g| g).count();
+        total += gt.len();
+        for (j, r) in [0, 2, 4].into_iter().enumerate() {
+            let m = dilate(&video.motion_masks[k], w, h, r);
+            masked[j] += m.iter().filter(|&&x| x).count();
+            hit[j] += m.iter().zip(&gt).filter(|(a, b)| **a && **b).count();
+        }
     }
+    let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
+    println!(
+        "{} | {threshold} | {} ({:.2} %) | {:.1} % | {:.1} % | {:.1} % | {:.0} / {:.0} / {:.0} % | {:.0} / {:.0} / {:.0} %",
+        dir.display(),
+        video.has_motion,
+        100.0 * video.moving_fraction.unwrap_or(f32::NAN),
+        pct(truth, total),
+        pct(masked[0], total),
+        pct(masked[0] - hit[0], total),
+        pct(hit[0], truth),
+        pct(hit[1], truth),
+        pct(hit[2], truth),
+        pct(hit[0], masked[0]),
+        pct(hit[1], masked[1]),
+        pct(hit[2], masked[2]),
+    );
     Ok(())
 }

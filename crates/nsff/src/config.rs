@@ -423,9 +423,7 @@ impl NsffConfig {
             self.samples = 128;
             self.flow_scale = 1.0;
         } else {
-            let extent = (0..3)
-                .map(|a| dataset.aabb[1][a] - dataset.aabb[0][a])
-                .fold(0.0f32, f32::max);
+            let extent = nerf::model::scene_bounds(dataset).extent();
             self.flow_scale = 0.1 * extent;
             // Four field queries per sample make NSFF's samples dear, and the grid prunes only
             // once training has emptied the air: march at a quarter of the static pipeline's
