@@ -77,8 +77,8 @@ use rayon::prelude::*;
 
 pub use cache::{read_flow_cache, write_flow_cache};
 pub use motion::{
-    LOW_PARALLAX_PX, MIN_MOVING_FRACTION, MotionReport, chained_flow, epipolar_errors, fundamental_matrix,
-    independent_motion, motion_masks, motion_stride,
+    LOW_PARALLAX_PX, MIN_MOVING_FRACTION, MaskRule, MotionReport, chained_flow, epipolar_errors,
+    fundamental_matrix, independent_motion, motion_masks, motion_stride,
 };
 pub use tvl1::TvL1Params;
 

@@ -330,10 +330,32 @@ pub fn independent_motion(
     }
 }
 
+/// How [`motion_masks`] marks a pixel as moving.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MaskRule {
+    /// Epipolar error (pixels) above which a pixel counts as moving.
+    pub threshold_px: f32,
+    /// Count a pixel as moving only when both neighbours' errors exceed the threshold (the
+    /// smaller error, not the larger): an occlusion edge breaks the flow towards one neighbour
+    /// only, a mover shows in both. Frames with one neighbour use that one.
+    pub both_neighbours: bool,
+}
+
+impl MaskRule {
+    /// NSFF's rule: the larger of the two neighbours' errors above `threshold_px`.
+    pub fn either(threshold_px: f32) -> Self {
+        Self {
+            threshold_px,
+            both_neighbours: false,
+        }
+    }
+}
+
 /// NSFF-style per-frame motion masks (`[H*W]`, 1 = probably moving) for hard-example mining:
-/// e = max(e_bwd·mask_bwd, e_fwd·mask_fwd) from [`epipolar_errors`] of the neighbours
+/// e = max(e_bwd·mask_bwd, e_fwd·mask_fwd) (or the min, [`MaskRule::both_neighbours`]) from
+/// [`epipolar_errors`] of the neighbours
 /// `stride` frames away (flows chained, [`chained_flow`]; the nearest available when the video
-/// ends sooner), opened with the 3×3 cross at `threshold_px`, then dilated twice by it (≈ NSFF's
+/// ends sooner), opened with the 3×3 cross at the rule's threshold, then dilated twice by it (≈ NSFF's
 /// `disk(2)` dilation, without its semantic-segmentation part). Frames with no flow get all zeros.
 ///
 /// # Panics
@@ -342,7 +364,7 @@ pub fn motion_masks(
     frames: &[Camera],
     fwd: &[Option<FlowField>],
     bwd: &[Option<FlowField>],
-    threshold_px: f32,
+    rule: MaskRule,
     stride: usize,
 ) -> Vec<Vec<f32>> {
     use rayon::prelude::*;
@@ -356,7 +378,8 @@ pub fn motion_masks(
         .map(|i| {
             let k = &frames[i].intrinsics;
             let (w, h) = (k.width as usize, k.height as usize);
-            let mut e = vec![0f32; w * h];
+            // Per pixel, the neighbours' errors combined by the rule (NaN until one is seen).
+            let mut e = vec![f32::NAN; w * h];
             let ahead = stride.max(1).min(n - 1 - i);
             let behind = stride.max(1).min(i);
             let neighbours = [
@@ -373,13 +396,18 @@ pub fn motion_masks(
                 if let Some(cam_b) = frames.get(j) {
                     let flow = &flow;
                     for (acc, v) in e.iter_mut().zip(epipolar_errors(flow, &frames[i], cam_b)) {
-                        if !v.is_nan() {
-                            *acc = acc.max(v);
+                        if v.is_nan() {
+                            continue;
                         }
+                        *acc = match (acc.is_nan(), rule.both_neighbours) {
+                            (true, _) => v,
+                            (false, false) => acc.max(v),
+                            (false, true) => acc.min(v),
+                        };
                     }
                 }
             }
-            let moving: Vec<bool> = e.iter().map(|&v| v > threshold_px).collect();
+            let moving: Vec<bool> = e.iter().map(|&v| v > rule.threshold_px).collect();
             let mut m = opening(&moving, w, h);
             for _ in 0..2 {
                 m = morph_cross(&m, w, h, false);

@@ -6,7 +6,9 @@
 //! mover; both pooled over all frames, for the raw mask and dilated by 2 and 4 pixels. "still in
 //! mask": static pixels inside the raw mask, as a share of all pixels (the static batch never
 //! trains them). `MASK_THRESHOLDS=0.5,1,2` scores several mask thresholds (pixels of epipolar
-//! error; default 0.5, NSFF's `mask_threshold_px`) on one flow computation; `MASK_PNG_DIR=D`
+//! error; default 0.5, NSFF's `mask_threshold_px`) on one flow computation, and
+//! `MASK_RULES=either,both` each with the larger and the smaller of the two neighbours' errors
+//! (`mask_both_neighbours`; default `either`); `MASK_PNG_DIR=D`
 //! also writes each scene's frame-0 mask over its image to `D/<scene>_<threshold>.png` (masked
 //! pixels red where the generator says static, green on a mover); with `MASK_PNG_ALL=1` every
 //! frame, as `D/<scene>_<threshold>_<frame>.png`.
@@ -41,6 +43,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .split(',')
         .map(|t| t.trim().parse())
         .collect::<Result<_, _>>()?;
+    let rules = std::env::var("MASK_RULES").unwrap_or_else(|_| "either".into());
+    let rules: Vec<bool> = rules
+        .split(',')
+        .map(|r| match r.trim() {
+            "either" => Ok(false),
+            "both" => Ok(true),
+            other => Err(format!("MASK_RULES: `{other}` is neither `either` nor `both`")),
+        })
+        .collect::<Result<_, _>>()?;
     let png = match std::env::var_os("MASK_PNG_DIR") {
         Some(d) => {
             let dir = std::path::PathBuf::from(d);
@@ -58,8 +69,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for dir in std::env::args().skip(1) {
         let dir = Path::new(&dir);
         let cache = std::env::temp_dir().join(format!("mask-recall-{}", std::process::id()));
-        for &threshold in &thresholds {
-            score(dir, &cache, threshold, png.as_ref())?;
+        for &threshold_px in &thresholds {
+            for &both_neighbours in &rules {
+                let rule = nerf_flow::MaskRule {
+                    threshold_px,
+                    both_neighbours,
+                };
+                score(dir, &cache, rule, png.as_ref())?;
+            }
         }
         let _ = std::fs::remove_dir_all(&cache);
     }
@@ -72,16 +89,21 @@ struct Pngs {
     all_frames: bool,
 }
 
-/// One line of the table: the masks at `threshold` px, the flow cached in `cache`.
+/// One line of the table: the masks by `rule`, the flow cached in `cache`.
 fn score(
     dir: &Path,
     cache: &Path,
-    threshold: f32,
+    rule: nerf_flow::MaskRule,
     png: Option<&Pngs>,
 ) -> Result<(), Box<dyn std::error::Error>> {
     let scene = nerf_synth::Scene::load(dir)?;
     let ds = nerf_data::load::load_video(dir, &LoadOptions::default())?;
-    let video = nsff::video::prepare(ds, cache, (1.0, threshold), true)?;
+    let video = nsff::video::prepare(ds, cache, 1.0, rule, true)?;
+    let threshold = format!(
+        "{}{}",
+        rule.threshold_px,
+        if rule.both_neighbours { " both" } else { "" }
+    );
     let movers = scene.moving_objects();
     let (mut truth, mut total) = (0usize, 0usize);
     let mut hit = [0usize; 3];
@@ -116,7 +138,10 @@ fn score(
             } else {
                 String::new()
             };
-            img.save(png.dir.join(format!("{name}_{threshold}{frame}.png")))?;
+            img.save(
+                png.dir
+                    .join(format!("{name}_{}{frame}.png", threshold.replace(' ', "_"))),
+            )?;
         }
         truth += gt.iter().filter(|&&g| g).count();
         total += gt.len();

@@ -167,6 +167,10 @@ pub struct NsffConfig {
     /// the built-in flow's error is about 0.15 px.
     #[serde(default = "default_mask_threshold_px")]
     pub mask_threshold_px: f32,
+    /// Mask a pixel only when the flows to both neighbouring frames disagree with the camera
+    /// (an occlusion edge breaks one of them, a mover both), instead of either.
+    #[serde(default)]
+    pub mask_both_neighbours: bool,
     /// Initial logit of the blend weight b (the dynamic share): −3 gives b ≈ 0.05.
     #[serde(default = "default_blend_init_logit")]
     pub blend_init_logit: f32,
@@ -183,6 +187,11 @@ pub struct NsffConfig {
     /// learns as fast as in `nerf` while the costly dynamic terms see one frame per step.
     #[serde(default = "default_static_batch")]
     pub static_batch: bool,
+    /// The static batch also draws pixels inside the motion masks and trains those where the
+    /// static field's own mean squared error is below this (static content the masks caught,
+    /// such as occlusion edges; a mover's pixels stay far off). 0 keeps masked pixels out.
+    #[serde(default)]
+    pub masked_still_mse: f32,
     /// Score the dynamic-only render on the frame's motion mask only, instead of whole frames
     /// (NSFF), so the dynamic field need not learn the static scene.
     #[serde(default)]
@@ -386,11 +395,13 @@ impl NsffConfig {
             dynamic: DynamicMode::Auto,
             motion_threshold_px: 1.0,
             mask_threshold_px: default_mask_threshold_px(),
+            mask_both_neighbours: false,
             blend_init_logit: default_blend_init_logit(),
             blend_skip: 1e-2,
             time_interp: TimeInterp::Direct,
             hard_fraction: default_hard_fraction(),
             static_batch: default_static_batch(),
+            masked_still_mse: 0.0,
             static_batch_scale: VIDEO_STATIC_BATCH_SCALE,
             space_time_share: VIDEO_SPACE_TIME_SHARE,
             dynamic_photo_masked: false,

@@ -111,10 +111,15 @@ fn train_json(dataset: &Dataset) -> std::path::PathBuf {
 
 /// Prepares the video: frame order, flows (given, cached or computed), motion decision. A
 /// jumping camera ([`capture::classify`]) gets neither flows nor masks.
-/// `thresholds_px`: epipolar errors above the first count as motion for the decision, above
-/// the second for the per-frame masks.
-pub fn prepare(dataset: Dataset, cache_dir: &Path, thresholds_px: (f32, f32), quiet: bool) -> Result<Video> {
-    let (motion_threshold_px, mask_threshold_px) = thresholds_px;
+/// Epipolar errors above `motion_threshold_px` count as motion for the decision; `masks` marks
+/// the per-frame motion masks.
+pub fn prepare(
+    dataset: Dataset,
+    cache_dir: &Path,
+    motion_threshold_px: f32,
+    masks: nerf_flow::MaskRule,
+    quiet: bool,
+) -> Result<Video> {
     let (frames, times) = check_frames(&dataset)?;
     let n = frames.len();
     let cameras: Vec<nerf_data::Camera> = frames.iter().map(|&f| dataset.views[f].camera).collect();
@@ -157,11 +162,10 @@ pub fn prepare(dataset: Dataset, cache_dir: &Path, thresholds_px: (f32, f32), qu
     }
     let stride = nerf_flow::motion_stride(n);
     let report = nerf_flow::independent_motion(&cameras, &flow_fwd, motion_threshold_px, stride);
-    let motion_masks: Vec<Vec<bool>> =
-        nerf_flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, mask_threshold_px, stride)
-            .into_iter()
-            .map(|m| m.into_iter().map(|v| v > 0.5).collect())
-            .collect();
+    let motion_masks: Vec<Vec<bool>> = nerf_flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, masks, stride)
+        .into_iter()
+        .map(|m| m.into_iter().map(|v| v > 0.5).collect())
+        .collect();
     let moving_pixels = motion_masks
         .iter()
         .map(|m| (0..m.len() as u32).filter(|&p| m[p as usize]).collect())
