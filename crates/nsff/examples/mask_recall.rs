@@ -6,11 +6,12 @@
 //! mover; both pooled over all frames, for the raw mask and dilated by 2 and 4 pixels. "still in
 //! mask": static pixels inside the raw mask, as a share of all pixels (the static batch never
 //! trains them). `MASK_THRESHOLDS=0.5,1,2` scores several mask thresholds (pixels of epipolar
-//! error; default 0.5, NSFF's `mask_threshold_px`) on one flow computation, and
+//! error; default 0.35, NSFF's `mask_threshold_px`) on one flow computation, and
 //! `MASK_RULES=either,both` each with the larger and the smaller of the two neighbours' errors
 //! (`mask_both_neighbours`; default `either`); `MASK_PNG_DIR=D`
 //! also writes each scene's frame-0 mask over its image to `D/<scene>_<threshold>.png` (masked
-//! pixels red where the generator says static, green on a mover); with `MASK_PNG_ALL=1` every
+//! pixels red where the generator says static, green on a mover; mover pixels the mask misses
+//! blue); with `MASK_PNG_ALL=1` every
 //! frame, as `D/<scene>_<threshold>_<frame>.png`.
 
 use std::path::Path;
@@ -130,6 +131,7 @@ fn score(
                 *px = match (video.motion_masks[k][p], gt[p]) {
                     (true, true) => image::Rgb([0, 200, 0]),
                     (true, false) => image::Rgb([230, 0, 0]),
+                    (false, true) => image::Rgb([0, 90, 255]),
                     _ => image::Rgb([grey, grey, grey]),
                 };
             }

@@ -164,11 +164,13 @@ pub struct NsffConfig {
     pub motion_threshold_px: f32,
     /// Epipolar-error threshold of the per-frame motion masks (hard mining, static batch). Lower
     /// than the decision's: motion along an epipolar line shows only part of its flow there, and
-    /// the built-in flow's error is about 0.15 px.
+    /// the built-in flow's error is about 0.15 px. A mover pixel the masks miss costs more than
+    /// a static pixel they hold.
     #[serde(default = "default_mask_threshold_px")]
     pub mask_threshold_px: f32,
     /// Mask a pixel only when the flows to both neighbouring frames disagree with the camera
-    /// (an occlusion edge breaks one of them, a mover both), instead of either.
+    /// (an occlusion edge breaks one of them, a mover both), instead of either. Off: it loses a
+    /// third to two thirds of the movers (BENCHMARKS.md §6, seventeenth session).
     #[serde(default)]
     pub mask_both_neighbours: bool,
     /// Initial logit of the blend weight b (the dynamic share): −3 gives b ≈ 0.05.
@@ -187,11 +189,6 @@ pub struct NsffConfig {
     /// learns as fast as in `nerf` while the costly dynamic terms see one frame per step.
     #[serde(default = "default_static_batch")]
     pub static_batch: bool,
-    /// The static batch also draws pixels inside the motion masks and trains those where the
-    /// static field's own mean squared error is below this (static content the masks caught,
-    /// such as occlusion edges; a mover's pixels stay far off). 0 keeps masked pixels out.
-    #[serde(default)]
-    pub masked_still_mse: f32,
     /// Score the dynamic-only render on the frame's motion mask only, instead of whole frames
     /// (NSFF), so the dynamic field need not learn the static scene.
     #[serde(default)]
@@ -313,8 +310,10 @@ fn default_sparsity_points() -> usize {
     2048
 }
 
+// Mover pixels the masks miss train the static field and cost far more than static pixels they
+// hold (BENCHMARKS.md §6, seventeenth session: 0.35 over 0.5 on the six tuning scenes).
 fn default_mask_threshold_px() -> f32 {
-    0.5
+    0.35
 }
 
 fn default_hard_fraction() -> f32 {
@@ -401,7 +400,6 @@ impl NsffConfig {
             time_interp: TimeInterp::Direct,
             hard_fraction: default_hard_fraction(),
             static_batch: default_static_batch(),
-            masked_still_mse: 0.0,
             static_batch_scale: VIDEO_STATIC_BATCH_SCALE,
             space_time_share: VIDEO_SPACE_TIME_SHARE,
             dynamic_photo_masked: false,

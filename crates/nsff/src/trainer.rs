@@ -744,38 +744,19 @@ impl NsffTrainer {
     }
 
     /// The static batch: the static pipeline's step on `n_static_rays` pixels outside the motion
-    /// masks (with `masked_still_mse`, also inside them where the static field's error is that
-    /// small). Its loss, loss value, ray and sample counts; `None` when no ray has samples.
+    /// masks. Its loss, loss value, ray and sample counts; `None` when no ray has samples.
     fn static_batch(&self, rng: &mut StdRng) -> Result<Option<(Tensor<1>, f64, usize, usize)>> {
-        let trust = self.cfg.masked_still_mse;
-        let (rays, target, masked) = self.still_pixels(self.n_static_rays.max(1), trust > 0.0, rng);
+        let (rays, target) = self.still_pixels(self.n_static_rays.max(1), rng);
         let target = tensor(target, 3, &self.device);
-        let still = span("nsff_static_batch", || -> Result<_> {
-            if !masked.iter().any(|&m| m) {
-                return self.static_photometric(&rays, target, rng);
-            }
-            let Some((rgb, s_n)) = self.static_render(&rays, rng) else {
-                return Ok(None);
-            };
-            // A masked pixel the static field already explains is static content the masks
-            // caught; one it does not is (probably) a mover, which must stay out.
-            let err = (rgb.clone().detach() - target.clone()).powi_scalar(2).mean_dim(1);
-            let err = nerf_core::readback::read_back(err.inner(), "static batch errors")?;
-            let keep: Vec<f32> = masked
-                .iter()
-                .zip(&err)
-                .map(|(&m, &e)| f32::from(u8::from(!m || e < trust)))
-                .collect();
-            let loss = losses::wmse(rgb, target, tensor(keep, 1, &self.device));
-            let m = read_scalar(loss.clone().inner(), "loss")?;
-            Ok(Some((loss, m, s_n)))
+        let still = span("nsff_static_batch", || {
+            self.static_photometric(&rays, target, rng)
         })?;
         Ok(still.map(|(loss, m, n)| (loss, m, rays.len(), n)))
     }
 
-    /// `n` rays from random frames and their colours (`[n * 3]`), at pixels outside the frames'
-    /// motion masks, or anywhere with `masked_too`; which rays lie inside a mask.
-    fn still_pixels(&self, n: usize, masked_too: bool, rng: &mut StdRng) -> (Rays, Vec<f32>, Vec<bool>) {
+    /// `n` rays from random frames at pixels outside their motion masks, and their colours
+    /// (`[n * 3]`).
+    fn still_pixels(&self, n: usize, rng: &mut StdRng) -> (Rays, Vec<f32>) {
         let v = &self.video;
         let mut per_frame: Vec<Vec<u32>> = vec![Vec::new(); v.frames.len()];
         for _ in 0..n {
@@ -784,7 +765,7 @@ impl NsffTrainer {
                 let k = rng.random_range(0..v.frames.len());
                 let img = &v.dataset.views[v.frames[k]].image;
                 let p = rng.random_range(0..img.width * img.height);
-                if masked_too || !v.motion_masks[k][p as usize] {
+                if !v.motion_masks[k][p as usize] {
                     per_frame[k].push(p);
                     break;
                 }
@@ -792,14 +773,12 @@ impl NsffTrainer {
         }
         let mut rays = Rays::with_capacity(n);
         let mut target = Vec::with_capacity(3 * n);
-        let mut masked = Vec::with_capacity(n);
         for (k, pixels) in per_frame.iter().enumerate().filter(|(_, p)| !p.is_empty()) {
             let view = &v.dataset.views[v.frames[k]];
             rays.extend(&v.dataset.rays_for(&view.camera, pixels.iter().copied()));
             target.extend(pixel_colours(view, pixels));
-            masked.extend(pixels.iter().map(|&p| v.motion_masks[k][p as usize]));
         }
-        (rays, target, masked)
+        (rays, target)
     }
 
     /// The static field alone on `rays` against `target` (`[R, 3]`): the static pipeline's
@@ -810,28 +789,19 @@ impl NsffTrainer {
         target: Tensor<2>,
         rng: &mut StdRng,
     ) -> Result<Option<(Tensor<1>, f64, usize)>> {
-        let Some((rgb, s_n)) = self.static_render(rays, rng) else {
-            return Ok(None);
-        };
-        let loss = losses::mse(rgb, target);
-        let m = read_scalar(loss.clone().inner(), "loss")?;
-        Ok(Some((loss, m, s_n)))
-    }
-
-    /// The static field alone on `rays`: colours `[R, 3]` and the sample count. `None` when no
-    /// ray has samples.
-    fn static_render(&self, rays: &Rays, rng: &mut StdRng) -> Option<(Tensor<2>, usize)> {
         // Rays of mixed times (the static batch), or a model without time bins: the union.
         let samples = self.samples(rays, None, rng);
         let s_n = samples.num_samples();
         if s_n == 0 {
-            return None;
+            return Ok(None);
         }
         let x = tensor(samples.positions(rays), 3, &self.device);
         let dirs = samples.per_sample3(&rays.viewdirs());
         let st = self.model.fields.static_field.query(FieldQuery::new(x, &dirs));
         let out = self.render(rays, &samples, &[Component::new(st.sigma, st.rgb)]);
-        Some((out.rgb, s_n))
+        let loss = losses::mse(out.rgb, target);
+        let m = read_scalar(loss.clone().inner(), "loss")?;
+        Ok(Some((loss, m, s_n)))
     }
 
     /// Trains until a budget is reached (the static pipeline's loop).
