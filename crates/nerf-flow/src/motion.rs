@@ -378,7 +378,8 @@ pub fn motion_masks(
         .map(|i| {
             let k = &frames[i].intrinsics;
             let (w, h) = (k.width as usize, k.height as usize);
-            // Per pixel, the neighbours' errors combined by the rule (NaN until one is seen).
+            // Per pixel, the neighbours' errors combined by the rule (NaN until one is seen;
+            // `f32::max` and `f32::min` return the other operand when one is NaN).
             let mut e = vec![f32::NAN; w * h];
             let ahead = stride.max(1).min(n - 1 - i);
             let behind = stride.max(1).min(i);
@@ -396,13 +397,10 @@ pub fn motion_masks(
                 if let Some(cam_b) = frames.get(j) {
                     let flow = &flow;
                     for (acc, v) in e.iter_mut().zip(epipolar_errors(flow, &frames[i], cam_b)) {
-                        if v.is_nan() {
-                            continue;
-                        }
-                        *acc = match (acc.is_nan(), rule.both_neighbours) {
-                            (true, _) => v,
-                            (false, false) => acc.max(v),
-                            (false, true) => acc.min(v),
+                        *acc = if rule.both_neighbours {
+                            acc.min(v)
+                        } else {
+                            acc.max(v)
                         };
                     }
                 }

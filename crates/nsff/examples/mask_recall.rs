@@ -39,8 +39,13 @@ fn dilate(mask: &[bool], w: usize, h: usize, r: i64) -> Vec<bool> {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
+    // Without MASK_THRESHOLDS, the threshold `nsff train` uses.
+    let default =
+        nsff::config::NsffConfig::new(nerf::config::Preset::Fast, "".into(), LoadOptions::default())
+            .mask_threshold_px
+            .to_string();
     let thresholds: Vec<f32> = std::env::var("MASK_THRESHOLDS")
-        .unwrap_or_else(|_| "0.5".into())
+        .unwrap_or(default)
         .split(',')
         .map(|t| t.trim().parse())
         .collect::<Result<_, _>>()?;
