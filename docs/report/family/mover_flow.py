@@ -6,8 +6,8 @@ usage: mover_flow.py SCENE RUN [SCENE RUN ...]
 SCENE is a `nerf synth --preset family` folder (its gt/train holds the exact forward flow and
 depth), RUN an `nsff train` run directory whose flow_cache/ holds the built-in flow. A pixel is
 a mover pixel when its exact flow differs by more than 0.3 px from the flow the camera alone
-would give its exact depth (z-depth or distance along the ray, whichever reproduces the static
-pixels). Prints, per scene, the built-in flow's end-point error on mover and static pixels, the
+would give its exact depth (the generator's camera depth along −z; 0 where no surface is hit).
+Prints, per scene, the built-in flow's end-point error on mover and static pixels, the
 movers' own motion (exact flow minus the camera's) and the share of mover pixels that the
 flow's forward-backward consistency mask keeps (only those train the projected-flow term).
 """
@@ -18,11 +18,10 @@ import sys
 import numpy as np
 
 
-def camera_flow(depth, c2w, c2w_next, focal, width, height, along_ray):
+def camera_flow(depth, c2w, c2w_next, focal, width, height):
     j, i = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    # Camera rays with z = -1, so a point is the ray times its camera depth.
     dirs = np.stack([(j - width / 2) / focal, -(i - height / 2) / focal, -np.ones_like(j)], -1)
-    if along_ray:
-        dirs = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
     world = (dirs * depth[..., None]) @ c2w[:3, :3].T + c2w[:3, 3]
     w2c = np.linalg.inv(c2w_next)
     q = world @ w2c[:3, :3].T + w2c[:3, 3]
@@ -42,12 +41,8 @@ def scene_stats(scene, run):
         focal = 0.5 * width / math.tan(0.5 * meta["camera_angle_x"])
         c2w = np.array(frames[k]["transform_matrix"])
         c2w_next = np.array(frames[k + 1]["transform_matrix"])
-        surface = np.isfinite(depth) & (depth > 0) & (depth < 50)
-        own = min(
-            (np.linalg.norm(exact - camera_flow(depth, c2w, c2w_next, focal, width, height, r), axis=-1)
-             for r in (False, True)),
-            key=lambda d: np.median(d[surface]),
-        )
+        surface = depth > 0
+        own = np.linalg.norm(exact - camera_flow(depth, c2w, c2w_next, focal, width, height), axis=-1)
         mover = surface & (own > 0.3)
         if not mover.any():
             continue
@@ -55,6 +50,8 @@ def scene_stats(scene, run):
         err = np.linalg.norm(cache["flow"] - exact, axis=-1)
         rows.append((err[mover].mean(), err[surface & ~mover].mean(), np.median(own[mover]),
                      cache["mask"][mover].mean(), mover.sum()))
+    if not rows:
+        sys.exit(f"{scene}: no mover pixels in any training frame")
     return np.array(rows).mean(axis=0)
 
 
