@@ -88,21 +88,13 @@ mod tests {
     use nerf::renderer::{SceneBounds, tensor};
     use nerf_core::field::Field;
 
-    /// A model with a space-time planes encoding saves its four dynamic grids and loads them back
-    /// in place: the loaded dynamic field answers exactly as the saved one.
-    #[test]
-    fn planes_encoding_round_trips_through_a_checkpoint() {
-        let device = Device::flex();
-        let mut cfg = NsffConfig::new(nerf::config::Preset::Fast, "unused".into(), Default::default());
-        cfg.dynamic_encoding = SpaceTimeEncoding::Planes;
-        cfg.dynamic_grid.time_resolution = Some(9);
+    /// A dynamic model for `cfg` with every hash table filled with distinct values, and the
+    /// model a checkpoint of it loads back.
+    fn round_trip(cfg: &NsffConfig, device: &Device) -> (NsffModel, NsffModel) {
         let bounds = SceneBounds::object(2.0, 6.0, [[-1.0; 3], [1.0; 3]]);
         let times: Vec<f32> = (0..10).map(|i| i as f32 / 9.0).collect();
-        let model = NsffModel::new(&cfg, bounds, times, true, &device);
-        let dynamic = model.fields.dynamic.as_ref().unwrap();
-        // Static grid, then the dynamic field's space grid and three planes.
-        assert_eq!(model.host_params().len(), 1 + 4);
-        for (k, grid) in dynamic.host_params().iter().enumerate() {
+        let model = NsffModel::new(cfg, bounds, times, true, device);
+        for (k, grid) in model.host_params().iter().enumerate() {
             let table: Vec<f32> = (0..grid.num_params())
                 .map(|i| ((i * 7919 + k * 31) % 1000) as f32 / 500.0 - 1.0)
                 .collect();
@@ -111,11 +103,29 @@ mod tests {
         let path = Path::new("run/checkpoint.bin");
         let mut s = Sections::default();
         write_model(&model, &mut s, path).unwrap();
-        let loaded = read_model(&cfg, true, &s, path, &device).unwrap();
+        let loaded = read_model(cfg, true, &s, path, device).unwrap();
+        (model, loaded)
+    }
 
+    /// 50 probe positions in the box and their (constant) view directions.
+    fn probe() -> (Vec<f32>, Vec<f32>) {
         let n = 50;
-        let pos: Vec<f32> = (0..3 * n).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
-        let dirs = [0.0f32, 0.0, 1.0].repeat(n);
+        let pos = (0..3 * n).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
+        (pos, [0.0f32, 0.0, 1.0].repeat(n))
+    }
+
+    /// A model with a space-time planes encoding saves its four dynamic grids and loads them back
+    /// in place: the loaded dynamic field answers exactly as the saved one.
+    #[test]
+    fn planes_encoding_round_trips_through_a_checkpoint() {
+        let device = Device::flex();
+        let mut cfg = NsffConfig::new(nerf::config::Preset::Fast, "unused".into(), Default::default());
+        cfg.dynamic_encoding = SpaceTimeEncoding::Planes;
+        cfg.dynamic_grid.time_resolution = Some(9);
+        let (model, loaded) = round_trip(&cfg, &device);
+        // Static grid, then the dynamic field's space grid and three planes.
+        assert_eq!(model.host_params().len(), 1 + 4);
+        let (pos, dirs) = probe();
         let answer = |m: &NsffModel| {
             let d = m.fields.dynamic.as_ref().unwrap();
             let out = query_dynamic(d, tensor(pos.clone(), 3, &device), 0.37, &dirs);
@@ -128,6 +138,37 @@ mod tests {
             grid.set_table(vec![1.0; grid.num_params()]).unwrap();
         }
         assert_ne!(answer(&loaded), want);
+    }
+
+    /// With its own network (`flow_levels`), the scene flow comes from the flow grid and MLP,
+    /// which a checkpoint saves and loads back: the loaded field answers the same flow, and
+    /// changing the flow grid changes the flow but not the density.
+    #[test]
+    fn own_flow_network_round_trips_and_owns_the_flow() {
+        let device = Device::flex();
+        let mut cfg = NsffConfig::new(nerf::config::Preset::Fast, "unused".into(), Default::default());
+        cfg.dynamic_grid.time_resolution = Some(9);
+        cfg.flow_levels = 3;
+        let (model, loaded) = round_trip(&cfg, &device);
+        // Static grid, the dynamic field's grid, the flow grid.
+        assert_eq!(model.host_params().len(), 3);
+        let flow_grid = model.host_params()[2].clone();
+        assert_eq!(flow_grid.config.levels, 3);
+        let (pos, dirs) = probe();
+        let answer = |m: &NsffModel| {
+            let d = m.fields.dynamic.as_ref().unwrap();
+            let out = query_dynamic(d, tensor(pos.clone(), 3, &device), 0.37, &dirs);
+            let host = |t: burn::tensor::Tensor<2>| t.into_data().try_into_vec_as::<f32>().unwrap();
+            (host(out.sigma), host(out.extras.expect(crate::field::FLOW_NEXT)))
+        };
+        let (want, got) = (answer(&model), answer(&loaded));
+        assert_eq!(want, got);
+        loaded.host_params()[2]
+            .set_table(vec![0.0; flow_grid.num_params()])
+            .unwrap();
+        let (sigma, flow) = answer(&loaded);
+        assert_eq!(sigma, want.0, "the flow grid does not touch the density");
+        assert_ne!(flow, want.1, "the flow comes from the flow grid");
     }
 
     /// Time-binned occupancy grids save one grid per bin and load back bin for bin (and the

@@ -265,6 +265,39 @@ pub struct NsffConfig {
     /// dynamic-field query of every sample and its backward pass.
     #[serde(default = "default_warp_neighbours")]
     pub warp_neighbours: usize,
+    /// Scene flow from its own small space-time grid (this many levels; fast preset) and MLP
+    /// instead of the dynamic field's shared head, so the flow terms do not pull the features
+    /// that density and colour are made of. 0 (the default): the shared head. Screened with
+    /// `flow_detach_weights` and `weights.optical_flow=0.2` (BENCHMARKS.md §6, twentieth
+    /// session): the flow learns the motion and the views between frames keep their quality,
+    /// but off the path the six tuning videos lose 0.24 dB on average.
+    #[serde(default)]
+    pub flow_levels: usize,
+    /// log2 of the flow grid's entries per level.
+    #[serde(default = "default_flow_log2_table")]
+    pub flow_log2_table: u32,
+    /// Finest spatial resolution of the flow grid (scene flow is smooth).
+    #[serde(default = "default_flow_finest")]
+    pub flow_finest: u32,
+    /// Hidden width of the flow MLP.
+    #[serde(default = "default_flow_hidden")]
+    pub flow_hidden: usize,
+    /// The projected-flow term reads the dynamic render's weights detached, so it trains the
+    /// scene flow only, not where the dynamic field puts its density.
+    #[serde(default)]
+    pub flow_detach_weights: bool,
+}
+
+fn default_flow_log2_table() -> u32 {
+    14
+}
+
+fn default_flow_finest() -> u32 {
+    64
+}
+
+fn default_flow_hidden() -> usize {
+    32
 }
 
 /// A render step scale must be a positive number (a zero step would put every render sample at
@@ -416,6 +449,11 @@ impl NsffConfig {
             occupancy_time_bins: default_occupancy_time_bins(),
             frames_per_batch: default_frames_per_batch(),
             warp_neighbours: VIDEO_WARP_NEIGHBOURS,
+            flow_levels: 0,
+            flow_log2_table: default_flow_log2_table(),
+            flow_finest: default_flow_finest(),
+            flow_hidden: default_flow_hidden(),
+            flow_detach_weights: false,
         }
     }
 
@@ -490,6 +528,12 @@ impl NsffConfig {
                 self.base.preset
             ));
         }
+        if self.flow_levels > 0 && self.base.preset != Preset::Fast {
+            return Err(format!(
+                "flow_levels={} needs --preset fast (the {:?} preset's scene flow comes from its shared head)",
+                self.flow_levels, self.base.preset
+            ));
+        }
         if !(self.time_jitter.is_finite() && self.time_jitter >= 0.0) {
             return Err(format!(
                 "time_jitter must be 0 or more frames, got {}",
@@ -502,6 +546,16 @@ impl NsffConfig {
             );
         }
         check_render_step_scale("render_step_scale", self.render_step_scale)
+    }
+
+    /// The scene-flow grid (`flow_levels` > 0): the dynamic grid's time cells, coarser in space.
+    pub fn flow_grid(&self) -> Option<HashGridConfig> {
+        (self.flow_levels > 0).then(|| HashGridConfig {
+            levels: self.flow_levels,
+            log2_table: self.flow_log2_table,
+            finest_resolution: self.flow_finest.max(self.dynamic_grid.base_resolution),
+            ..self.dynamic_grid.clone()
+        })
     }
 
     /// Weight multiplier of the decaying terms at `step` and training `progress` in [0, 1].
@@ -561,6 +615,27 @@ mod tests {
         assert_eq!((cfg.static_batch_scale, cfg.space_time_share), (1.0, 1.0));
         assert_eq!(cfg.sparsity_points, 512);
         assert_eq!(cfg.weights.entropy, 1e-3);
+    }
+
+    /// The flow grid is opt-in (`flow_levels`), with the dynamic grid's time cells and its own
+    /// levels, resolution and table; the vanilla preset, which has no grid, refuses it.
+    #[test]
+    fn the_flow_grid_is_opt_in_and_needs_the_fast_preset() {
+        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
+        cfg.dynamic_grid.time_resolution = Some(23);
+        assert!(cfg.flow_grid().is_none());
+        assert!(!cfg.flow_detach_weights);
+        cfg.flow_levels = 4;
+        let grid = cfg.flow_grid().unwrap();
+        assert_eq!(
+            (grid.levels, grid.finest_resolution, grid.log2_table),
+            (4, 64, 14)
+        );
+        assert_eq!((grid.dims, grid.time_resolution), (4, Some(23)));
+        assert!(cfg.validate().is_ok());
+        cfg.base.preset = Preset::Vanilla;
+        let err = cfg.validate().unwrap_err();
+        assert!(err.contains("flow_levels") && err.contains("fast"), "{err}");
     }
 
     /// No warp neighbour at all would silently drop the scene flow's warp terms: refused.

@@ -8,6 +8,11 @@
 //! frame's camera cannot see without also hiding the object at the times it is there. The gate
 //! lets b fall at one time and stay at another; b_s alone still decides which samples can skip
 //! the dynamic field at render time (b ≤ b_s).
+//!
+//! Opt-in (`flow_levels`, fast preset), the scene flow has its own small space-time grid and MLP
+//! ([`FlowNet`]) and the head's flow outputs go unused: sharing the density network's features,
+//! a flow trained hard enough to follow the motion costs the views between frames 0.2-1.4 dB,
+//! and its own network does not (BENCHMARKS.md §6, eighteenth to twentieth sessions).
 
 use std::sync::Arc;
 
@@ -15,10 +20,11 @@ use burn::module::Module;
 use burn::tensor::activation::sigmoid;
 use burn::tensor::{Device, Tensor};
 use nerf::config::Preset;
-use nerf::field::{BaseField, FastFieldConfig, RAW_EXTRA, VanillaFieldConfig};
+use nerf::field::{BaseField, FastFieldConfig, RAW_EXTRA, VanillaFieldConfig, normalize};
 use nerf::model::base_field;
-use nerf_core::encoding::HashGrid;
+use nerf_core::encoding::{GridEncoding, HashGrid, HashGridConfig};
 use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery};
+use nerf_core::mlp::{Mlp, MlpConfig};
 
 use crate::config::{NsffConfig, SpaceTimeEncoding};
 
@@ -91,6 +97,36 @@ pub struct DynamicField {
     pub inner: BaseField,
     /// Scene flow is `flow_scale · tanh(raw)`.
     pub flow_scale: f32,
+    /// The scene flow's own network; without it the flow is the shared head's first six outputs.
+    pub flow: Option<FlowNet>,
+}
+
+/// Scene flow from its own space-time hash grid and MLP: `[S, 6]` raw flow to the previous and
+/// next frame at positions `[S, 3]` and times `[S, 1]`.
+#[derive(Module, Debug)]
+pub struct FlowNet {
+    pub mlp: Mlp,
+    #[module(skip)]
+    pub encoding: GridEncoding,
+    #[module(skip)]
+    pub aabb: [[f32; 3]; 2],
+}
+
+impl FlowNet {
+    pub fn new(grid: HashGridConfig, hidden: usize, aabb: [[f32; 3]; 2], device: &Device, seed: u64) -> Self {
+        let encoding = GridEncoding::Hash(HashGrid::new(grid, seed));
+        FlowNet {
+            mlp: MlpConfig::new(encoding.output_dim(), hidden, 1, 6).init(device),
+            encoding,
+            aabb,
+        }
+    }
+
+    pub fn forward(&self, positions: Tensor<2>, time: Tensor<2>) -> Tensor<2> {
+        let x = Tensor::cat(vec![normalize(positions, self.aabb), time], 1);
+        let enc = nerf_core::profile::span("fwd.flow_encode", || self.encoding.encode(x));
+        nerf_core::profile::span("fwd.flow_mlp", || self.mlp.forward(enc))
+    }
 }
 
 impl DynamicField {
@@ -130,17 +166,22 @@ impl DynamicField {
         if let Some(head) = head {
             open_gate(head, device);
         }
+        let flow = cfg
+            .flow_grid()
+            .map(|grid| FlowNet::new(grid, cfg.flow_hidden, aabb, device, seed.wrapping_add(2)));
         DynamicField {
             inner,
             flow_scale: cfg.flow_scale,
+            flow,
         }
     }
 
-    /// The named extras from the raw head `[S, 9]`.
-    fn extras(&self, raw: Extras) -> Extras {
+    /// The named extras from the raw head `[S, 9]` and, with its own network, the raw flow
+    /// `[S, 6]`.
+    fn extras(&self, raw: Extras, own_flow: Option<Tensor<2>>) -> Extras {
         let raw = raw.expect(RAW_EXTRA);
         let n = raw.dims()[0];
-        let flow = raw.clone().slice([0..n, 0..6]).tanh() * self.flow_scale;
+        let flow = own_flow.unwrap_or_else(|| raw.clone().slice([0..n, 0..6])).tanh() * self.flow_scale;
         let prob = sigmoid(raw.clone().slice([0..n, 6..8]));
         let mut extras = Extras::default();
         extras.push(FLOW_PREV, flow.clone().slice([0..n, 0..3]));
@@ -161,11 +202,19 @@ impl Field for DynamicField {
 
     fn query(&self, query: FieldQuery<'_>) -> FieldOutputs {
         debug_assert!(query.time.is_some(), "the dynamic field needs a time");
-        self.inner.query(query).map_extras(|e| self.extras(e))
+        let own_flow = match (&self.flow, &query.time) {
+            (Some(f), Some(t)) => Some(f.forward(query.positions.clone(), t.clone())),
+            _ => None,
+        };
+        self.inner.query(query).map_extras(|e| self.extras(e, own_flow))
     }
 
     fn host_params(&self) -> Vec<Arc<HashGrid>> {
-        self.inner.host_params()
+        let mut out = self.inner.host_params();
+        if let Some(f) = &self.flow {
+            out.extend(f.encoding.grids());
+        }
+        out
     }
 }
 

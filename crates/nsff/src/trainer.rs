@@ -531,10 +531,12 @@ impl NsffTrainer {
         let x_next = x.clone() + flow_next.clone();
         let x_prev = x.clone() + flow_prev.clone();
         let disparity = tensor(sample_disparity(&samples.t, ds.ndc.is_some()), 1, dev);
-        let mut dyn_component = Component::new(dy.sigma.clone(), dy.rgb.clone())
-            .with(X_NEXT, x_next.clone())
-            .with(X_PREV, x_prev.clone())
-            .with(DISPARITY, disparity);
+        let mut dyn_component = Component::new(dy.sigma.clone(), dy.rgb.clone()).with(DISPARITY, disparity);
+        if !self.cfg.flow_detach_weights {
+            dyn_component = dyn_component
+                .with(X_NEXT, x_next.clone())
+                .with(X_PREV, x_prev.clone());
+        }
         if wts.depth_spread > 0.0 {
             let t_sq = samples.t.iter().map(|t| t * t).collect();
             dyn_component = dyn_component.with(DEPTH_SQ, tensor(t_sq, 1, dev));
@@ -563,6 +565,16 @@ impl NsffTrainer {
                 loss = loss + l * (wts.depth * decay);
             }
         }
+
+        // The flowed points integrated with the render weights held fixed, when the projected
+        // flow should train the scene flow alone (`flow_detach_weights`).
+        let flow_render = self.cfg.flow_detach_weights.then(|| {
+            let flowed = Component::channels_only(dy.sigma.clone().detach())
+                .with(X_NEXT, x_next.clone())
+                .with(X_PREV, x_prev.clone());
+            self.render(rays, &samples, &[flowed])
+        });
+        let projected = flow_render.as_ref().unwrap_or(&dyn_only);
 
         // Neighbouring frames: warped renders, disocclusion weights, cycle and flow terms.
         let (warp_to, warp_weight) = pick_neighbours(
@@ -603,8 +615,8 @@ impl NsffTrainer {
                 }
                 let camera = &ds.views[v.frames[j]].camera;
                 let l = losses::optical_flow(
-                    dyn_only.expect(flowed),
-                    dyn_only.opacity.clone(),
+                    projected.expect(flowed),
+                    projected.opacity.clone(),
                     ds.ndc.as_ref(),
                     camera,
                     tgt,
