@@ -20,7 +20,7 @@ use burn::module::Module;
 use burn::tensor::activation::sigmoid;
 use burn::tensor::{Device, Tensor};
 use nerf::config::Preset;
-use nerf::field::{BaseField, FastFieldConfig, RAW_EXTRA, VanillaFieldConfig, normalize};
+use nerf::field::{BaseField, FastFieldConfig, RAW_EXTRA, VanillaFieldConfig, grid_coords};
 use nerf::model::base_field;
 use nerf_core::encoding::{GridEncoding, HashGrid, HashGridConfig};
 use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery};
@@ -123,7 +123,7 @@ impl FlowNet {
     }
 
     pub fn forward(&self, positions: Tensor<2>, time: Tensor<2>) -> Tensor<2> {
-        let x = Tensor::cat(vec![normalize(positions, self.aabb), time], 1);
+        let x = grid_coords(positions, Some(time), self.aabb);
         let enc = nerf_core::profile::span("fwd.flow_encode", || self.encoding.encode(x));
         nerf_core::profile::span("fwd.flow_mlp", || self.mlp.forward(enc))
     }

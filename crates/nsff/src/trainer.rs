@@ -525,8 +525,9 @@ impl NsffTrainer {
             loss = loss + hidden * wts.hidden;
         }
 
-        // Dynamic-only render, also integrating the flowed points (for the optical-flow term)
-        // and a disparity-like value per sample (for the depth prior).
+        // Dynamic-only render, also integrating the flowed points (for the optical-flow term,
+        // unless it reads them with detached weights below) and a disparity-like value per
+        // sample (for the depth prior).
         let (flow_next, flow_prev) = (dy.extras.expect(FLOW_NEXT), dy.extras.expect(FLOW_PREV));
         let x_next = x.clone() + flow_next.clone();
         let x_prev = x.clone() + flow_prev.clone();

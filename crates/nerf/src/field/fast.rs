@@ -19,7 +19,7 @@ use nerf_core::encoding::{GridEncoding, HashGrid, HashGridConfig, SpaceTimePlane
 use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery};
 use nerf_core::mlp::{Mlp, MlpConfig};
 
-use super::normalize;
+use super::grid_coords;
 
 #[derive(Config, Debug)]
 pub struct FastFieldConfig {
@@ -86,15 +86,6 @@ pub struct FastField {
 }
 
 impl FastField {
-    /// Grid coordinates `[S, D]`: positions normalised over the box, then the time, if any.
-    fn grid_input(&self, positions: Tensor<2>, time: Option<Tensor<2>>) -> Tensor<2> {
-        let x = normalize(positions, self.aabb);
-        match time {
-            Some(t) => Tensor::cat(vec![x, t], 1),
-            None => x,
-        }
-    }
-
     /// Geometry features `[S, G]` for grid coordinates in [0, 1]^D.
     fn geometry(&self, normalized: Tensor<2>) -> Tensor<2> {
         let enc = nerf_core::profile::span("fwd.hash_encode", || self.encoding.encode(normalized));
@@ -116,7 +107,7 @@ impl FastField {
 
 impl Field for FastField {
     fn density(&self, positions: Tensor<2>, time: Option<Tensor<2>>) -> Density {
-        let geo = self.geometry(self.grid_input(positions, time));
+        let geo = self.geometry(grid_coords(positions, time, self.aabb));
         Density {
             sigma: self.sigma(&geo),
             extras: self.extras(geo),
@@ -125,7 +116,7 @@ impl Field for FastField {
 
     fn query(&self, query: FieldQuery<'_>) -> FieldOutputs {
         let device = query.positions.device();
-        let geo = self.geometry(self.grid_input(query.positions, query.time));
+        let geo = self.geometry(grid_coords(query.positions, query.time, self.aabb));
         let sigma = self.sigma(&geo);
         let n = geo.dims()[0];
         let sh = Tensor::<2>::from_data(

@@ -65,6 +65,16 @@ pub fn raw_extras(head: Option<&burn::nn::Linear>, features: Tensor<2>) -> nerf_
     extras
 }
 
+/// Grid coordinates `[S, D]` of a grid encoding over `aabb`: positions `[S, 3]` normalised over
+/// the box, then the time `[S, 1]`, if any, as a fourth axis.
+pub fn grid_coords(positions: Tensor<2>, time: Option<Tensor<2>>, aabb: [[f32; 3]; 2]) -> Tensor<2> {
+    let x = normalize(positions, aabb);
+    match time {
+        Some(t) => Tensor::cat(vec![x, t], 1),
+        None => x,
+    }
+}
+
 /// Maps world positions inside `aabb` to [0, 1]^3 (differentiable; used by grid encodings).
 pub fn normalize(positions: Tensor<2>, aabb: [[f32; 3]; 2]) -> Tensor<2> {
     let device = positions.device();
