@@ -286,6 +286,11 @@ pub struct NsffConfig {
     /// scene flow only, not where the dynamic field puts its density.
     #[serde(default)]
     pub flow_detach_weights: bool,
+    /// With `flow_detach_weights`, the share of the projected-flow term that still reads the
+    /// render weights (the rest reads them detached): through the weights the term also places
+    /// the movers' geometry. 0: all detached (checkpoints from before it read 0).
+    #[serde(default)]
+    pub flow_weights_share: f32,
 }
 
 fn default_flow_log2_table() -> u32 {
@@ -454,6 +459,7 @@ impl NsffConfig {
             flow_finest: default_flow_finest(),
             flow_hidden: default_flow_hidden(),
             flow_detach_weights: false,
+            flow_weights_share: 0.0,
         }
     }
 
@@ -534,6 +540,18 @@ impl NsffConfig {
                 self.flow_levels, self.base.preset
             ));
         }
+        if !(0.0..=1.0).contains(&self.flow_weights_share) {
+            return Err(format!(
+                "flow_weights_share must be in [0, 1], got {}",
+                self.flow_weights_share
+            ));
+        }
+        if self.flow_levels > 0 && self.flow_finest < self.dynamic_grid.base_resolution {
+            return Err(format!(
+                "flow_finest={} is below the dynamic grid's base resolution ({}), the flow grid's coarsest level",
+                self.flow_finest, self.dynamic_grid.base_resolution
+            ));
+        }
         if !(self.time_jitter.is_finite() && self.time_jitter >= 0.0) {
             return Err(format!(
                 "time_jitter must be 0 or more frames, got {}",
@@ -553,7 +571,7 @@ impl NsffConfig {
         (self.flow_levels > 0).then(|| HashGridConfig {
             levels: self.flow_levels,
             log2_table: self.flow_log2_table,
-            finest_resolution: self.flow_finest.max(self.dynamic_grid.base_resolution),
+            finest_resolution: self.flow_finest,
             ..self.dynamic_grid.clone()
         })
     }
@@ -633,6 +651,17 @@ mod tests {
         );
         assert_eq!((grid.dims, grid.time_resolution), (4, Some(23)));
         assert!(cfg.validate().is_ok());
+        // A finest resolution below the coarsest level is refused, not raised.
+        cfg.flow_finest = 8;
+        let err = cfg.validate().unwrap_err();
+        assert!(err.contains("flow_finest=8") && err.contains("16"), "{err}");
+        cfg.flow_finest = 64;
+        // The share of the term through the weights is a fraction.
+        for (share, ok) in [(0.0, true), (0.1, true), (1.0, true), (-0.1, false), (1.5, false)] {
+            cfg.flow_weights_share = share;
+            assert_eq!(cfg.validate().is_ok(), ok, "share {share}");
+        }
+        cfg.flow_weights_share = 0.0;
         cfg.base.preset = Preset::Vanilla;
         let err = cfg.validate().unwrap_err();
         assert!(err.contains("flow_levels") && err.contains("fast"), "{err}");

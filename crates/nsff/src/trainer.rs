@@ -525,15 +525,22 @@ impl NsffTrainer {
             loss = loss + hidden * wts.hidden;
         }
 
-        // Dynamic-only render, also integrating the flowed points (for the optical-flow term,
-        // unless it reads them with detached weights below) and a disparity-like value per
+        // Dynamic-only render, also integrating the flowed points (for the part of the
+        // optical-flow term that reads the render weights) and a disparity-like value per
         // sample (for the depth prior).
         let (flow_next, flow_prev) = (dy.extras.expect(FLOW_NEXT), dy.extras.expect(FLOW_PREV));
         let x_next = x.clone() + flow_next.clone();
         let x_prev = x.clone() + flow_prev.clone();
         let disparity = tensor(sample_disparity(&samples.t, ds.ndc.is_some()), 1, dev);
         let mut dyn_component = Component::new(dy.sigma.clone(), dy.rgb.clone()).with(DISPARITY, disparity);
-        if !self.cfg.flow_detach_weights {
+        // Share of the projected-flow term that reads the render weights (the rest reads them
+        // detached, below).
+        let through = match (wts.optical_flow > 0.0, self.cfg.flow_detach_weights) {
+            (false, _) => 0.0,
+            (true, true) => f64::from(self.cfg.flow_weights_share),
+            (true, false) => 1.0,
+        };
+        if through > 0.0 {
             dyn_component = dyn_component
                 .with(X_NEXT, x_next.clone())
                 .with(X_PREV, x_prev.clone());
@@ -567,15 +574,21 @@ impl NsffTrainer {
             }
         }
 
-        // The flowed points integrated with the render weights held fixed, when the projected
-        // flow should train the scene flow alone (`flow_detach_weights`).
-        let flow_render = self.cfg.flow_detach_weights.then(|| {
+        // The flowed points integrated with the render weights held fixed, for the part of the
+        // projected-flow term that trains the scene flow alone (`flow_detach_weights`).
+        let flow_render = (wts.optical_flow > 0.0 && through < 1.0).then(|| {
             let flowed = Component::channels_only(dy.sigma.clone().detach())
                 .with(X_NEXT, x_next.clone())
                 .with(X_PREV, x_prev.clone());
             self.render(rays, &samples, &[flowed])
         });
-        let projected = flow_render.as_ref().unwrap_or(&dyn_only);
+        // The projected-flow term reads these renders, weighted: the flowed points integrated
+        // with the render weights (`through`) and with them detached (the rest).
+        let projected: Vec<(&RenderOutput, f64)> =
+            [(Some(&dyn_only), through), (flow_render.as_ref(), 1.0 - through)]
+                .into_iter()
+                .filter_map(|(r, w)| r.filter(|_| w > 0.0).map(|r| (r, w)))
+                .collect();
 
         // Neighbouring frames: warped renders, disocclusion weights, cycle and flow terms.
         let (warp_to, warp_weight) = pick_neighbours(
@@ -615,15 +628,17 @@ impl NsffTrainer {
                     mask.push(of.mask[q]);
                 }
                 let camera = &ds.views[v.frames[j]].camera;
-                let l = losses::optical_flow(
-                    projected.expect(flowed),
-                    projected.opacity.clone(),
-                    ds.ndc.as_ref(),
-                    camera,
-                    tgt,
-                    mask,
-                )?;
-                loss = loss + l * (wts.optical_flow * decay * warp_weight as f64);
+                for &(render, w) in &projected {
+                    let l = losses::optical_flow(
+                        render.expect(flowed),
+                        render.opacity.clone(),
+                        ds.ndc.as_ref(),
+                        camera,
+                        tgt.clone(),
+                        mask.clone(),
+                    )?;
+                    loss = loss + l * (w * wts.optical_flow * decay * warp_weight as f64);
+                }
             }
         }
         if !v.camera_path.is_jumping() {
@@ -1004,6 +1019,59 @@ mod tests {
         assert!(seen.contains(&true) && seen.contains(&false), "{seen:?}");
         let first = neighbours(0, 10, false);
         assert_eq!(pick_neighbours(first.clone(), 1, &mut rng), (first, 1.0));
+    }
+
+    /// With the render weights detached, the projected-flow term reaches the scene flow's own
+    /// grid and not the dynamic field's: that grid gets the gradient it gets without the term.
+    /// With a share of the term through the weights, the term reaches it too.
+    #[test]
+    fn the_detached_flow_term_reaches_the_flow_grid_only() {
+        let dir = std::env::temp_dir().join(format!("nsff-flow-share-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let (mut cfg, video) = video_scene(&dir);
+        cfg.dynamic = DynamicMode::On;
+        cfg.adapt_to(&video.dataset, video.frames.len());
+        cfg.static_warm_up = 0.0;
+        cfg.flow_levels = 3;
+        cfg.flow_detach_weights = true;
+        let run_dir = dir.join("run");
+        // One model for every setting (the device's initialisation draws are shared with tests
+        // running beside this one).
+        let mut t = NsffTrainer::new(cfg, video, &run_dir).unwrap();
+        assert!(t.video.flow_fwd.iter().any(Option::is_some), "no optical flow");
+        let grids = t.model.fields.dynamic.as_ref().unwrap().host_params();
+        assert_eq!(grids.len(), 2, "the dynamic grid and the flow grid");
+        // (dynamic grid, flow grid) gradients of one space-time step's loss, same draws.
+        let mut grads = |optical_flow: f64, share: f32| {
+            t.cfg.weights.optical_flow = optical_flow;
+            t.cfg.flow_weights_share = share;
+            grids.iter().for_each(|g| g.zero_grad());
+            let (loss, _, _) = t
+                .step_loss(false, &mut StdRng::seed_from_u64(11))
+                .unwrap()
+                .unwrap();
+            let _ = loss.backward();
+            (grids[0].grad(), grids[1].grad())
+        };
+        let (dyn_without, flow_without) = grads(0.0, 0.0);
+        let (dyn_detached, flow_detached) = grads(0.5, 0.0);
+        let (dyn_through, _) = grads(0.5, 0.5);
+        let diff = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        let scale = dyn_without.iter().fold(0.0f32, |m, g| m.max(g.abs()));
+        assert!(scale > 0.0, "no gradient reached the dynamic grid");
+        assert!(
+            diff(&dyn_detached, &dyn_without) <= 1e-6 * scale,
+            "the detached term moved the dynamic grid"
+        );
+        assert!(
+            diff(&flow_detached, &flow_without) > 0.0,
+            "the term did not reach the flow grid"
+        );
+        assert!(
+            diff(&dyn_through, &dyn_without) > 1e-4 * scale,
+            "the share through the weights did not reach the dynamic grid"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     /// A video's step warps towards both neighbours (one at either end); a jumping camera's
