@@ -8,7 +8,8 @@
 //! trains them). `MASK_THRESHOLDS=0.5,1,2` scores several mask thresholds (pixels of epipolar
 //! error; default 0.35, NSFF's `mask_threshold_px`) on one flow computation, and
 //! `MASK_RULES=either,both` each with the larger and the smaller of the two neighbours' errors
-//! (`mask_both_neighbours`; default `either`); `MASK_PNG_DIR=D`
+//! (`mask_both_neighbours`; default `either`); `MASK_UNMASK_BACKGROUND=1` keeps the background
+//! pixels (alpha 0) out of the masks (`unmask_background`); `MASK_PNG_DIR=D`
 //! also writes each scene's frame-0 mask over its image to `D/<scene>_<threshold>.png` (masked
 //! pixels red where the generator says static, green on a mover; mover pixels the mask misses
 //! blue); with `MASK_PNG_ALL=1` every
@@ -40,10 +41,9 @@ fn dilate(mask: &[bool], w: usize, h: usize, r: i64) -> Vec<bool> {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     // Without MASK_THRESHOLDS, the threshold `nsff train` uses.
-    let default =
-        nsff::config::NsffConfig::new(nerf::config::Preset::Fast, "".into(), LoadOptions::default())
-            .mask_threshold_px
-            .to_string();
+    let train = nsff::config::NsffConfig::new(nerf::config::Preset::Fast, "".into(), LoadOptions::default());
+    let default = train.mask_threshold_px.to_string();
+    let unmask_background = train.unmask_background || std::env::var_os("MASK_UNMASK_BACKGROUND").is_some();
     let thresholds: Vec<f32> = std::env::var("MASK_THRESHOLDS")
         .unwrap_or(default)
         .split(',')
@@ -81,7 +81,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     threshold_px,
                     both_neighbours,
                 };
-                score(dir, &cache, rule, png.as_ref())?;
+                score(dir, &cache, rule, unmask_background, png.as_ref())?;
             }
         }
         let _ = std::fs::remove_dir_all(&cache);
@@ -100,11 +100,12 @@ fn score(
     dir: &Path,
     cache: &Path,
     rule: nerf_flow::MaskRule,
+    unmask_background: bool,
     png: Option<&Pngs>,
 ) -> Result<(), Box<dyn std::error::Error>> {
     let scene = nerf_synth::Scene::load(dir)?;
     let ds = nerf_data::load::load_video(dir, &LoadOptions::default())?;
-    let video = nsff::video::prepare(ds, cache, 1.0, rule, true)?;
+    let video = nsff::video::prepare(ds, cache, 1.0, rule, unmask_background, true)?;
     let threshold = format!(
         "{}{}",
         rule.threshold_px,

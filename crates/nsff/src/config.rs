@@ -173,6 +173,14 @@ pub struct NsffConfig {
     /// third to two thirds of the movers (BENCHMARKS.md §6, seventeenth session).
     #[serde(default)]
     pub mask_both_neighbours: bool,
+    /// Keep the pixels an RGBA video marks as background (alpha 0) out of the motion masks, so
+    /// that the static batch learns those rays are empty: no mover is there, and the flow test
+    /// fires on them along every silhouette against the background (a third of fam3's masks).
+    /// Hard mining still draws from them. Off: level on the tuning set (off the path ahead by
+    /// one scene), and it cost the views between frames on the report set (BENCHMARKS.md §6,
+    /// twenty-second session).
+    #[serde(default)]
+    pub unmask_background: bool,
     /// Initial logit of the blend weight b (the dynamic share): −3 gives b ≈ 0.05.
     #[serde(default = "default_blend_init_logit")]
     pub blend_init_logit: f32,
@@ -433,6 +441,7 @@ impl NsffConfig {
             motion_threshold_px: 1.0,
             mask_threshold_px: default_mask_threshold_px(),
             mask_both_neighbours: false,
+            unmask_background: false,
             blend_init_logit: default_blend_init_logit(),
             blend_skip: 1e-2,
             time_interp: TimeInterp::Direct,

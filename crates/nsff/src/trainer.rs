@@ -68,6 +68,7 @@ pub fn load_video(cfg: &NsffConfig, run_dir: &Path, quiet: bool) -> Result<Video
             threshold_px: cfg.mask_threshold_px,
             both_neighbours: cfg.mask_both_neighbours,
         },
+        cfg.unmask_background,
         quiet,
     )?)
 }
@@ -1178,6 +1179,42 @@ mod tests {
         let video = load_video(&cfg, &dir.join("run"), true).unwrap();
         assert!(!video.camera_path.is_jumping());
         (cfg, video)
+    }
+
+    /// On a generated RGBA video the flow test masks background pixels along the silhouettes;
+    /// with `unmask_background` the motion masks are the same less exactly those,
+    /// and hard mining still draws from all of them.
+    #[test]
+    fn background_pixels_are_kept_out_of_the_motion_masks() {
+        let dir = std::env::temp_dir().join(format!("nsff-unmask-bg-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let (mut cfg, kept) = video_scene(&dir);
+        assert!(!cfg.unmask_background, "opt-in");
+        cfg.unmask_background = true;
+        let unmasked = load_video(&cfg, &dir.join("run"), true).unwrap();
+        let (mut background, mut masked) = (0, 0);
+        for (k, &f) in kept.frames.iter().enumerate() {
+            let alpha = kept.dataset.views[f]
+                .alpha
+                .as_ref()
+                .expect("the synthetic video has alpha");
+            for (p, &a) in alpha.iter().enumerate() {
+                let (before, after) = (kept.motion_masks[k][p], unmasked.motion_masks[k][p]);
+                assert_eq!(after, before && a > 0.0, "frame {k} pixel {p} (alpha {a})");
+                background += usize::from(before && a == 0.0);
+                masked += usize::from(after);
+            }
+            assert_eq!(
+                unmasked.moving_pixels[k], kept.moving_pixels[k],
+                "frame {k}: hard mining draws from the flow test's masks, background included"
+            );
+        }
+        assert!(
+            background > 0,
+            "no background pixel was masked: the test cannot tell"
+        );
+        assert!(masked > 0, "the masks hold no pixel");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     /// A jumping camera's warm-up ends when the grid fills up again after carving (twice its

@@ -27,9 +27,11 @@ pub struct Video {
     /// camera has no flow: no fraction, and the decision is "moving").
     pub moving_fraction: Option<f32>,
     pub has_motion: bool,
-    /// Per frame, its motion mask (`[H*W]` row-major, true = probably moving).
+    /// Per frame, its motion mask (`[H*W]` row-major, true = probably moving; the static batch
+    /// draws from outside it).
     pub motion_masks: Vec<Vec<bool>>,
-    /// Per frame, the pixels inside its motion mask (what hard mining draws from).
+    /// Per frame, the pixels the flow test marks as moving (what hard mining draws from): the
+    /// motion mask's, and with `unmask_background` the background pixels it left out.
     pub moving_pixels: Vec<Vec<u32>>,
 }
 
@@ -99,6 +101,16 @@ pub fn check_frames(dataset: &Dataset) -> Result<(Vec<usize>, Vec<f32>)> {
     Ok((frames, times))
 }
 
+/// Clears the mask (`[H*W]`) wherever the frame's `alpha` is 0: the ray sees only the
+/// background, so no mover is on it, and the static batch should learn that it is empty. The flow
+/// test cannot tell: the background has no texture to match, and its flow, smoothed in from the
+/// scene's silhouette, leaves the epipolar lines there.
+pub fn unmask_background(mask: &mut [bool], alpha: &[f32]) {
+    for (m, &a) in mask.iter_mut().zip(alpha) {
+        *m &= a > 0.0;
+    }
+}
+
 /// The file frames come from, for messages (`transforms_train.json` or the folder).
 fn train_json(dataset: &Dataset) -> std::path::PathBuf {
     let json = dataset.source.join("transforms_train.json");
@@ -112,12 +124,14 @@ fn train_json(dataset: &Dataset) -> std::path::PathBuf {
 /// Prepares the video: frame order, flows (given, cached or computed), motion decision. A
 /// jumping camera ([`capture::classify`]) gets neither flows nor masks.
 /// Epipolar errors above `motion_threshold_px` count as motion for the decision; `masks` marks
-/// the per-frame motion masks.
+/// the per-frame motion masks, and with `unmask_background` the pixels of RGBA frames whose
+/// alpha is 0 are kept out of them ([`unmask_background`]).
 pub fn prepare(
     dataset: Dataset,
     cache_dir: &Path,
     motion_threshold_px: f32,
     masks: nerf_flow::MaskRule,
+    unmask_background: bool,
     quiet: bool,
 ) -> Result<Video> {
     let (frames, times) = check_frames(&dataset)?;
@@ -162,11 +176,22 @@ pub fn prepare(
     }
     let stride = nerf_flow::motion_stride(n);
     let report = nerf_flow::independent_motion(&cameras, &flow_fwd, motion_threshold_px, stride);
-    let motion_masks: Vec<Vec<bool>> = nerf_flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, masks, stride)
-        .into_iter()
-        .map(|m| m.into_iter().map(|v| v > 0.5).collect())
-        .collect();
-    let moving_pixels = motion_masks
+    let mut motion_masks: Vec<Vec<bool>> =
+        nerf_flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, masks, stride)
+            .into_iter()
+            .map(|m| m.into_iter().map(|v| v > 0.5).collect())
+            .collect();
+    let flow_masks = motion_masks.clone();
+    if unmask_background {
+        for (mask, &f) in motion_masks.iter_mut().zip(&frames) {
+            if let Some(alpha) = &dataset.views[f].alpha {
+                self::unmask_background(mask, alpha);
+            }
+        }
+    }
+    // Hard mining keeps the background pixels the flow test marks: along a mover's silhouette
+    // they teach the dynamic field where the mover ends.
+    let moving_pixels = flow_masks
         .iter()
         .map(|m| (0..m.len() as u32).filter(|&p| m[p as usize]).collect())
         .collect();
@@ -209,5 +234,17 @@ fn jumping(
         dataset,
         frames,
         times,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unmask_background_clears_the_background_pixels_only() {
+        let mut mask = vec![true, true, true, false];
+        unmask_background(&mut mask, &[0.0, 0.5, 1.0, 0.0]);
+        assert_eq!(mask, vec![false, true, true, false]);
     }
 }
