@@ -181,7 +181,12 @@ pub fn prepare(
             .into_iter()
             .map(|m| m.into_iter().map(|v| v > 0.5).collect())
             .collect();
-    let flow_masks = motion_masks.clone();
+    // Hard mining keeps the background pixels the flow test marks (taken before they are
+    // unmasked): along a mover's silhouette they teach the dynamic field where the mover ends.
+    let moving_pixels = motion_masks
+        .iter()
+        .map(|m| (0..m.len() as u32).filter(|&p| m[p as usize]).collect())
+        .collect();
     if unmask_background {
         for (mask, &f) in motion_masks.iter_mut().zip(&frames) {
             if let Some(alpha) = &dataset.views[f].alpha {
@@ -189,12 +194,6 @@ pub fn prepare(
             }
         }
     }
-    // Hard mining keeps the background pixels the flow test marks: along a mover's silhouette
-    // they teach the dynamic field where the mover ends.
-    let moving_pixels = flow_masks
-        .iter()
-        .map(|m| (0..m.len() as u32).filter(|&p| m[p as usize]).collect())
-        .collect();
     Ok(Video {
         motion_masks,
         moving_pixels,
