@@ -222,7 +222,6 @@ impl<F: FieldModule> Trainer<F> {
     /// Target colours and the background used for them. With random backgrounds (RGBA data),
     /// each ray gets a random colour and its target is recomposited over it.
     fn targets(&self, batch: &RayBatch, rng: &mut StdRng) -> (Tensor<2>, Background) {
-        let n = batch.rays.len();
         let Some(base) = self.dataset.background else {
             return (tensor(batch.rgb.clone(), 3, &self.device), Background::None);
         };
@@ -232,17 +231,12 @@ impl<F: FieldModule> Trainer<F> {
                 Background::Color(base),
             );
         }
-        let mut rgb = batch.rgb.clone();
-        let mut bg = Vec::with_capacity(3 * n);
-        for i in 0..n {
+        let alpha = (0..batch.rays.len()).map(|i| {
             let view = &self.dataset.views[batch.view[i] as usize];
-            let a = view.alpha.as_ref().map_or(1.0, |a| a[batch.pixel[i] as usize]);
-            let c: [f32; 3] = [rng.random(), rng.random(), rng.random()];
-            for k in 0..3 {
-                rgb[3 * i + k] += (1.0 - a) * (c[k] - base[k]);
-            }
-            bg.extend(c);
-        }
+            view.alpha.as_ref().map_or(1.0, |a| a[batch.pixel[i] as usize])
+        });
+        let mut rgb = batch.rgb.clone();
+        let bg = random_background(&mut rgb, alpha, base, rng);
         (
             tensor(rgb, 3, &self.device),
             Background::PerRay(tensor(bg, 3, &self.device)),
@@ -313,5 +307,62 @@ impl<F: FieldModule> crate::train_loop::Trainable for Trainer<F> {
         self.model.occupancy.as_ref().map_or(String::new(), |o| {
             format!(", {:.1}% occupied", 100.0 * o.occupied_fraction())
         })
+    }
+}
+
+/// Recomposites target colours `rgb` (`[n * 3]`, composited over `base`) over a random colour per
+/// ray, given each pixel's `alpha`, and returns those colours (`[n * 3]`, the per-ray
+/// background to render with): a model trained so cannot paint the background into the scene.
+pub fn random_background(
+    rgb: &mut [f32],
+    alpha: impl Iterator<Item = f32>,
+    base: [f32; 3],
+    rng: &mut impl Rng,
+) -> Vec<f32> {
+    let mut bg = Vec::with_capacity(rgb.len());
+    for (px, a) in rgb.chunks_exact_mut(3).zip(alpha) {
+        let c: [f32; 3] = [rng.random(), rng.random(), rng.random()];
+        for k in 0..3 {
+            px[k] += (1.0 - a) * (c[k] - base[k]);
+        }
+        bg.extend(c);
+    }
+    bg
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn random_background_recomposites_over_the_returned_colours() {
+        // Foregrounds composited over a grey base with alphas 0, 0.25, 1: after recompositing
+        // each target is a·fg + (1 − a)·c for the colour c returned for its ray (in f64).
+        let base = [0.5f32, 0.5, 0.5];
+        let fg = [[0.9f64, 0.1, 0.3], [0.2, 0.7, 0.4], [0.6, 0.6, 0.0]];
+        let alpha = [0.0f32, 0.25, 1.0];
+        let mut rgb: Vec<f32> = (0..3)
+            .flat_map(|i| {
+                (0..3).map(move |k| {
+                    (alpha[i] as f64 * fg[i][k] + (1.0 - alpha[i] as f64) * base[k] as f64) as f32
+                })
+            })
+            .collect();
+        let bg = random_background(
+            &mut rgb,
+            alpha.iter().copied(),
+            base,
+            &mut StdRng::seed_from_u64(3),
+        );
+        assert_eq!(bg.len(), 9);
+        for i in 0..3 {
+            for k in 0..3 {
+                let a = alpha[i] as f64;
+                let want = a * fg[i][k] + (1.0 - a) * bg[3 * i + k] as f64;
+                assert!((rgb[3 * i + k] as f64 - want).abs() < 1e-6, "ray {i} channel {k}");
+            }
+        }
+        // The colours are drawn, not the base.
+        assert!(bg.iter().any(|&c| (c - 0.5).abs() > 1e-3));
     }
 }

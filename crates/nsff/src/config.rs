@@ -218,6 +218,21 @@ pub struct NsffConfig {
     /// from before it read 0 (their runs go on as they started).
     #[serde(default)]
     pub static_warm_up: f64,
+    /// Share of the masked pixels (inside the motion masks) that the static warm-up's batch
+    /// draws at its start, falling linearly to 0 at its end. The masks hold static pixels at
+    /// occlusion edges and silhouettes, which the static field otherwise never trains on; what it
+    /// learns of the movers with them, the warm-up's last part and the space-time phase unlearn.
+    /// 0: off (checkpoints from before it read 0). At 1 with `warm_up_random_background` the
+    /// static field alone gains off the path on four of six tuning videos, but the renders lose
+    /// between frames on all six (BENCHMARKS.md §6, twenty-third session).
+    #[serde(default)]
+    pub warm_up_masked: f32,
+    /// The warm-up's static batch composites RGBA frames over a random colour per ray (as `nerf
+    /// train` does): over white, masked pixels against the sky teach white density, and the
+    /// off-path views lose up to 5.7 dB (BENCHMARKS.md §6, twenty-third session). Checkpoints from
+    /// before it read false.
+    #[serde(default)]
+    pub warm_up_random_background: bool,
     /// Whether the learning rate's decay, like the decaying weights', counts from the end of the
     /// static warm-up (the rate stays at `lr` during it). Without it the dynamic field starts at
     /// the rate of 30 % into the run. Checkpoints from before it read false.
@@ -451,6 +466,8 @@ impl NsffConfig {
             space_time_share: VIDEO_SPACE_TIME_SHARE,
             dynamic_photo_masked: false,
             static_warm_up: 0.3,
+            warm_up_masked: 0.0,
+            warm_up_random_background: false,
             lr_decay_after_warm_up: true,
             sparsity_points: VIDEO_SPARSITY_POINTS,
             error_rays: 0.0,
@@ -547,6 +564,12 @@ impl NsffConfig {
             return Err(format!(
                 "flow_levels={} needs --preset fast (the {:?} preset's scene flow comes from its shared head)",
                 self.flow_levels, self.base.preset
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.warm_up_masked) {
+            return Err(format!(
+                "warm_up_masked must be in [0, 1], got {}",
+                self.warm_up_masked
             ));
         }
         if !(0.0..=1.0).contains(&self.flow_weights_share) {

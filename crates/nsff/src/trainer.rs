@@ -416,11 +416,22 @@ impl NsffTrainer {
     /// Renders components along `rays` at `samples` on the training device.
     fn render(&self, rays: &Rays, samples: &RaySamples, components: &[Component]) -> RenderOutput {
         let bg = Background::from_option(self.video.dataset.background);
+        self.render_over(rays, samples, components, &bg)
+    }
+
+    /// [`Self::render`] over `background`.
+    fn render_over(
+        &self,
+        rays: &Rays,
+        samples: &RaySamples,
+        components: &[Component],
+        background: &Background,
+    ) -> RenderOutput {
         render(
             rays,
             samples,
             components,
-            &bg,
+            background,
             render_options(&self.model),
             &self.device,
         )
@@ -461,13 +472,14 @@ impl NsffTrainer {
     /// static warm-up (`warm_up`) the static batch alone.
     fn step_loss(&self, warm_up: bool, rng: &mut StdRng) -> Result<Option<(Tensor<1>, StepStats, usize)>> {
         if warm_up {
-            let still = self.static_batch(rng)?;
+            let still = self.static_batch(true, rng)?;
             return Ok(still.map(|(loss, m, rays, n)| (loss, stats(m, rays, n), n)));
         }
         let batch = self.frame_batch(rng);
         let Some(dynamic) = &self.model.fields.dynamic else {
             // No independent motion: the static pipeline's photometric loss only.
-            let Some((loss, m, s_n)) = self.static_photometric(&batch.rays, batch.target, rng)? else {
+            let bg = Background::from_option(self.video.dataset.background);
+            let Some((loss, m, s_n)) = self.static_photometric(&batch.rays, batch.target, &bg, rng)? else {
                 return Ok(None);
             };
             return Ok(Some((loss, stats(m, batch.rays.len(), s_n), 0)));
@@ -656,7 +668,7 @@ impl NsffTrainer {
         // The static batch draws from outside the motion masks; a jumping camera has none.
         if self.cfg.static_batch
             && !v.camera_path.is_jumping()
-            && let Some((loss_s, _, _, n)) = self.static_batch(rng)?
+            && let Some((loss_s, _, _, n)) = self.static_batch(false, rng)?
         {
             loss = loss + loss_s;
             static_samples = n;
@@ -773,19 +785,59 @@ impl NsffTrainer {
     }
 
     /// The static batch: the static pipeline's step on `n_static_rays` pixels outside the motion
-    /// masks. Its loss, loss value, ray and sample counts; `None` when no ray has samples.
-    fn static_batch(&self, rng: &mut StdRng) -> Result<Option<(Tensor<1>, f64, usize, usize)>> {
-        let (rays, target) = self.still_pixels(self.n_static_rays.max(1), rng);
+    /// masks. During the static warm-up (`warm_up`) it also draws masked pixels
+    /// ([`Self::warm_up_masked_share`]), and with `warm_up_random_background` RGBA frames
+    /// composite over a random colour per ray. Its loss, loss value, ray and sample counts;
+    /// `None` when no ray has samples.
+    fn static_batch(
+        &self,
+        warm_up: bool,
+        rng: &mut StdRng,
+    ) -> Result<Option<(Tensor<1>, f64, usize, usize)>> {
+        let masked_share = if warm_up { self.warm_up_masked_share() } else { 0.0 };
+        let pixels = self.still_pixels(self.n_static_rays.max(1), masked_share, rng);
+        let (rays, mut target, alpha) = self.pixel_rays(&pixels);
+        let background = self.static_background(warm_up, &mut target, &alpha, rng);
         let target = tensor(target, 3, &self.device);
         let still = span("nsff_static_batch", || {
-            self.static_photometric(&rays, target, rng)
+            self.static_photometric(&rays, target, &background, rng)
         })?;
         Ok(still.map(|(loss, m, n)| (loss, m, rays.len(), n)))
     }
 
-    /// `n` rays from random frames at pixels outside their motion masks, and their colours
-    /// (`[n * 3]`).
-    fn still_pixels(&self, n: usize, rng: &mut StdRng) -> (Rays, Vec<f32>) {
+    /// The share of masked pixels the static warm-up draws at this step: `warm_up_masked` at its
+    /// start, falling linearly to 0 at its end, so that its last part trains on unmasked pixels
+    /// only and unlearns what the movers left in the static field.
+    fn warm_up_masked_share(&self) -> f32 {
+        let warm_up = self.cfg.static_warm_up.max(1e-9);
+        let left = 1.0 - self.cfg.base.progress(self.step, self.elapsed) / warm_up;
+        self.cfg.warm_up_masked * left.clamp(0.0, 1.0) as f32
+    }
+
+    /// What the static batch composites over: during the warm-up with `warm_up_random_background`
+    /// and RGBA frames (`alpha` per ray), a random colour per ray that `target` (`[n * 3]`) is
+    /// recomposited over; else the dataset's background.
+    fn static_background(
+        &self,
+        warm_up: bool,
+        target: &mut [f32],
+        alpha: &[f32],
+        rng: &mut StdRng,
+    ) -> Background {
+        match self.video.dataset.background {
+            Some(base)
+                if warm_up && self.cfg.warm_up_random_background && 3 * alpha.len() == target.len() =>
+            {
+                let bg = nerf::trainer::random_background(target, alpha.iter().copied(), base, rng);
+                Background::PerRay(tensor(bg, 3, &self.device))
+            }
+            base => Background::from_option(base),
+        }
+    }
+
+    /// Per frame, `n` pixels in all drawn at random outside the frame's motion mask; a masked
+    /// pixel is taken too with probability `masked_share`.
+    fn still_pixels(&self, n: usize, masked_share: f32, rng: &mut StdRng) -> Vec<Vec<u32>> {
         let v = &self.video;
         let mut per_frame: Vec<Vec<u32>> = vec![Vec::new(); v.frames.len()];
         for _ in 0..n {
@@ -794,20 +846,37 @@ impl NsffTrainer {
                 let k = rng.random_range(0..v.frames.len());
                 let img = &v.dataset.views[v.frames[k]].image;
                 let p = rng.random_range(0..img.width * img.height);
-                if !v.motion_masks[k][p as usize] {
+                if !v.motion_masks[k][p as usize]
+                    || (masked_share > 0.0 && rng.random::<f32>() < masked_share)
+                {
                     per_frame[k].push(p);
                     break;
                 }
             }
         }
+        per_frame
+    }
+
+    /// The rays of `pixels` (per frame), their colours (`[n * 3]`) and their alpha (`[n]`; empty
+    /// unless every frame has one).
+    fn pixel_rays(&self, pixels: &[Vec<u32>]) -> (Rays, Vec<f32>, Vec<f32>) {
+        let v = &self.video;
+        let n = pixels.iter().map(Vec::len).sum();
         let mut rays = Rays::with_capacity(n);
         let mut target = Vec::with_capacity(3 * n);
-        for (k, pixels) in per_frame.iter().enumerate().filter(|(_, p)| !p.is_empty()) {
+        let mut alpha = Vec::with_capacity(n);
+        for (k, pixels) in pixels.iter().enumerate().filter(|(_, p)| !p.is_empty()) {
             let view = &v.dataset.views[v.frames[k]];
             rays.extend(&v.dataset.rays_for(&view.camera, pixels.iter().copied()));
             target.extend(pixel_colours(view, pixels));
+            if let Some(a) = &view.alpha {
+                alpha.extend(pixels.iter().map(|&p| a[p as usize]));
+            }
         }
-        (rays, target)
+        if alpha.len() != rays.len() {
+            alpha.clear();
+        }
+        (rays, target, alpha)
     }
 
     /// The static field alone on `rays` against `target` (`[R, 3]`): the static pipeline's
@@ -816,6 +885,7 @@ impl NsffTrainer {
         &self,
         rays: &Rays,
         target: Tensor<2>,
+        background: &Background,
         rng: &mut StdRng,
     ) -> Result<Option<(Tensor<1>, f64, usize)>> {
         // Rays of mixed times (the static batch), or a model without time bins: the union.
@@ -827,7 +897,7 @@ impl NsffTrainer {
         let x = tensor(samples.positions(rays), 3, &self.device);
         let dirs = samples.per_sample3(&rays.viewdirs());
         let st = self.model.fields.static_field.query(FieldQuery::new(x, &dirs));
-        let out = self.render(rays, &samples, &[Component::new(st.sigma, st.rgb)]);
+        let out = self.render_over(rays, &samples, &[Component::new(st.sigma, st.rgb)], background);
         let loss = losses::mse(out.rgb, target);
         let m = read_scalar(loss.clone().inner(), "loss")?;
         Ok(Some((loss, m, s_n)))
@@ -1169,6 +1239,14 @@ mod tests {
     }
 
     /// A small generated video (smooth camera path) under `dir/video`, loaded.
+    /// A fresh temporary folder `name`-pid and the generated video in it.
+    fn temp_video(name: &str) -> (PathBuf, NsffConfig, Video) {
+        let dir = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let (cfg, video) = video_scene(&dir);
+        (dir, cfg, video)
+    }
+
     fn video_scene(dir: &Path) -> (NsffConfig, Video) {
         let data = dir.join("video");
         let synth = nerf_synth::SynthConfig::new(nerf_synth::Preset::Dynamic)
@@ -1181,14 +1259,109 @@ mod tests {
         (cfg, video)
     }
 
+    /// The static warm-up draws masked pixels at `warm_up_masked`, falling linearly to none at
+    /// its end; at a share s a masked pixel is kept with probability s on each try, so masked
+    /// pixels make f·s / (1 − f + f·s) of the draw for a mask fraction f (f at s = 1: uniform).
+    #[test]
+    fn the_warm_up_draws_masked_pixels_at_a_falling_share() {
+        let (dir, mut cfg, video) = temp_video("nsff-warm-masked");
+        assert_eq!(cfg.warm_up_masked, 0.0, "opt-in");
+        cfg.base.steps = 100;
+        cfg.base.time_budget = None;
+        cfg.static_warm_up = 0.5;
+        cfg.warm_up_masked = 0.8;
+        let mut t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
+        for (step, want) in [(0, 0.8), (25, 0.4), (50, 0.0), (80, 0.0)] {
+            t.step = step;
+            let got = t.warm_up_masked_share();
+            assert!((got - want).abs() < 1e-6, "step {step}: share {got}, want {want}");
+        }
+        let f = t.video.mask_fraction() as f64;
+        assert!(
+            f > 0.02 && f < 0.98,
+            "the masks hold too few or too many pixels to tell: {f}"
+        );
+        let mut rng = StdRng::seed_from_u64(9);
+        let n = 20_000;
+        let mut masked_share = |s: f32| {
+            let pixels = t.still_pixels(n, s, &mut rng);
+            let drawn: usize = pixels.iter().map(Vec::len).sum();
+            // Eight tries per ray, each kept with probability 1 − f + f·s.
+            let kept = 1.0 - (f * (1.0 - s as f64)).powi(8);
+            assert!(
+                (drawn as f64 / n as f64 - kept).abs() < 0.02,
+                "{drawn} of {n} drawn, want {kept:.4}"
+            );
+            let masked = pixels
+                .iter()
+                .enumerate()
+                .map(|(k, p)| p.iter().filter(|&&p| t.video.motion_masks[k][p as usize]).count())
+                .sum::<usize>();
+            masked as f64 / drawn as f64
+        };
+        assert_eq!(masked_share(0.0), 0.0, "the default draws outside the masks only");
+        for s in [1.0f64, 0.5] {
+            let want = f * s / (1.0 - f + f * s);
+            let got = masked_share(s as f32);
+            // About 8 standard deviations of a share of 20 000 draws.
+            assert!(
+                (got - want).abs() < 0.03,
+                "share {s}: masked {got:.4}, want {want:.4}"
+            );
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// With `warm_up_random_background` the warm-up's static batch composites over a random
+    /// colour per ray: background pixels (alpha 0) take their ray's colour as target, opaque
+    /// pixels keep the image's; after the warm-up, the dataset's colour and the targets as read.
+    #[test]
+    fn the_warm_up_composites_over_random_backgrounds() {
+        let (dir, mut cfg, video) = temp_video("nsff-warm-rb");
+        assert!(!cfg.warm_up_random_background, "opt-in");
+        cfg.warm_up_random_background = true;
+        let t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
+        let mut rng = StdRng::seed_from_u64(4);
+        let pixels = t.still_pixels(2000, 1.0, &mut rng);
+        let (_, target, alpha) = t.pixel_rays(&pixels);
+        assert_eq!(3 * alpha.len(), target.len(), "the synthetic video has alpha");
+        let mut after = target.clone();
+        let bg = t.static_background(false, &mut after, &alpha, &mut rng);
+        assert!(matches!(bg, Background::Color(c) if Some(c) == t.video.dataset.background));
+        assert_eq!(after, target);
+        let mut warm = target.clone();
+        let Background::PerRay(bg) = t.static_background(true, &mut warm, &alpha, &mut rng) else {
+            panic!("no per-ray background in the warm-up")
+        };
+        let bg = nerf_core::readback::read_back(bg.inner(), "test").unwrap();
+        let (mut empty, mut opaque) = (0, 0);
+        for (r, &a) in alpha.iter().enumerate() {
+            let want: &[f32] = if a == 0.0 {
+                empty += 1;
+                &bg[3 * r..3 * r + 3]
+            } else if a == 1.0 {
+                opaque += 1;
+                &target[3 * r..3 * r + 3]
+            } else {
+                continue;
+            };
+            for c in 0..3 {
+                assert!((warm[3 * r + c] - want[c]).abs() < 1e-6, "ray {r} channel {c}");
+            }
+        }
+        assert!(
+            empty > 0 && opaque > 0,
+            "{empty} background and {opaque} opaque rays"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     /// On a generated RGBA video the flow test masks background pixels along the silhouettes;
     /// with `unmask_background` the motion masks are the same less exactly those,
     /// and hard mining still draws from all of them.
     #[test]
     fn background_pixels_are_kept_out_of_the_motion_masks() {
-        let dir = std::env::temp_dir().join(format!("nsff-unmask-bg-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let (mut cfg, kept) = video_scene(&dir);
+        let (dir, mut cfg, kept) = temp_video("nsff-unmask-bg");
         assert!(!cfg.unmask_background, "opt-in");
         cfg.unmask_background = true;
         let unmasked = load_video(&cfg, &dir.join("run"), true).unwrap();
