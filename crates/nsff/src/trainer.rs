@@ -1238,8 +1238,7 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
-    /// A small generated video (smooth camera path) under `dir/video`, loaded.
-    /// A fresh temporary folder `name`-pid and the generated video in it.
+    /// A fresh temporary folder `name`-pid and the generated video in it ([`video_scene`]).
     fn temp_video(name: &str) -> (PathBuf, NsffConfig, Video) {
         let dir = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
@@ -1247,6 +1246,7 @@ mod tests {
         (dir, cfg, video)
     }
 
+    /// A small generated video (smooth camera path) under `dir/video`, loaded.
     fn video_scene(dir: &Path) -> (NsffConfig, Video) {
         let data = dir.join("video");
         let synth = nerf_synth::SynthConfig::new(nerf_synth::Preset::Dynamic)
