@@ -290,10 +290,9 @@ pub struct NsffConfig {
     pub warp_neighbours: usize,
     /// Scene flow from its own small space-time grid (this many levels; fast preset) and MLP
     /// instead of the dynamic field's shared head, so the flow terms do not pull the features
-    /// that density and colour are made of. 0 (the default): the shared head. Screened with
-    /// `flow_detach_weights` and `weights.optical_flow=0.2` (BENCHMARKS.md §6, twentieth
-    /// session): the flow learns the motion and the views between frames keep their quality,
-    /// but off the path the six tuning videos lose 0.24 dB on average.
+    /// that density and colour are made of. 0: the shared head (the vanilla preset's, a jumping
+    /// camera's and an NDC video's); a video in the fast preset takes 4
+    /// ([`NsffConfig::adapt_to`]).
     #[serde(default)]
     pub flow_levels: usize,
     /// log2 of the flow grid's entries per level.
@@ -360,6 +359,11 @@ const VIDEO_SPARSITY_POINTS: usize = 1024;
 const VIDEO_WARP_NEIGHBOURS: usize = 1;
 
 const RENDER_STEP_SCALE: f32 = 0.5;
+
+// A video's scene flow ([`NsffConfig::use_flow_grid`]).
+const VIDEO_FLOW_LEVELS: usize = 4;
+const VIDEO_FLOW_WEIGHTS_SHARE: f32 = 0.1;
+const VIDEO_OPTICAL_FLOW: f64 = 0.2;
 
 // No entropy term on a video's blend: with NSFF's 1e-3 the blend closes during the space-time
 // phase on half the tuning videos and the dynamic field draws nothing there. Without it the
@@ -508,7 +512,24 @@ impl NsffConfig {
             // once training has emptied the air: march at a quarter of the static pipeline's
             // resolution (128 steps across the box diagonal, about NSFF's sample count).
             self.base.fast.march.step = extent * 3f32.sqrt() / 128.0;
+            if self.base.preset == Preset::Fast {
+                self.use_flow_grid();
+            }
         }
+    }
+
+    /// The scene flow on its own 4-level grid, trained by the projected-flow term at ten times
+    /// NSFF's weight with nine tenths of it reading the render weights detached (the tenth that
+    /// reads them still places the movers' geometry). The default for a generated-style video
+    /// (not NDC, which was never screened): on the six tuning videos the scene flow beats no
+    /// motion on all six at level PSNR (BENCHMARKS.md §6, twentieth and twenty-first sessions);
+    /// on two forward-path videos outside both sets its error is 22 % and 53 % below no motion
+    /// against the shared head's 4 % and 41 %, with PSNR +0.15 and +0.36 dB (twenty-fourth).
+    fn use_flow_grid(&mut self) {
+        self.flow_levels = VIDEO_FLOW_LEVELS;
+        self.flow_detach_weights = true;
+        self.flow_weights_share = VIDEO_FLOW_WEIGHTS_SHARE;
+        self.weights.optical_flow = VIDEO_OPTICAL_FLOW;
     }
 
     /// Settings for a jumping camera ([`crate::capture`]), after [`NsffConfig::adapt_to`]. Each
@@ -536,6 +557,11 @@ impl NsffConfig {
         self.static_batch_scale = 1.0;
         self.space_time_share = 1.0;
         self.weights.entropy = LossWeights::default().entropy;
+        // No optical flow, so no flow term trains a flow grid: the shared head, as screened.
+        self.flow_levels = 0;
+        self.flow_detach_weights = false;
+        self.flow_weights_share = 0.0;
+        self.weights.optical_flow = LossWeights::default().optical_flow;
         // Half the samples per step, about 1.5× the steps: better on six of seven generated
         // jumping scenes at 120 s (BENCHMARKS.md §8).
         self.base.fast.target_samples = 4096;

@@ -1145,6 +1145,41 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
+    /// A video in the fast preset takes its scene flow from its own grid, trained by the
+    /// projected-flow term mostly through detached render weights; the vanilla preset and a
+    /// jumping camera (no optical flow to train it) keep the shared head and NSFF's weight.
+    #[test]
+    fn a_video_s_scene_flow_has_its_own_grid() {
+        let (dir, mut cfg, video) = temp_video("nsff-flow-grid");
+        assert_eq!(cfg.flow_levels, 0, "before the video is known");
+        let mut vanilla = cfg.clone();
+        cfg.dynamic = DynamicMode::On;
+        cfg.adapt_to(&video.dataset, video.frames.len());
+        assert_eq!(cfg.flow_levels, 4);
+        assert!(cfg.flow_detach_weights);
+        assert_eq!((cfg.flow_weights_share, cfg.weights.optical_flow), (0.1, 0.2));
+        assert!(cfg.validate().is_ok());
+        vanilla.base.preset = Preset::Vanilla;
+        vanilla.adapt_to(&video.dataset, video.frames.len());
+        assert_eq!(vanilla.flow_levels, 0);
+        assert!(
+            vanilla.validate().is_ok(),
+            "the vanilla preset refuses a flow grid"
+        );
+        let t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
+        let grids = t.model.fields.dynamic.as_ref().unwrap().host_params();
+        assert_eq!(grids.len(), 2, "the dynamic grid and the flow grid");
+        let _ = std::fs::remove_dir_all(&dir);
+        let (dir, cfg, _) = jumping_scene("nsff-flow-grid-jumping");
+        assert_eq!(cfg.flow_levels, 0);
+        assert!(!cfg.flow_detach_weights);
+        assert_eq!(
+            cfg.weights.optical_flow,
+            crate::config::LossWeights::default().optical_flow
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     /// A video's step warps towards both neighbours (one at either end); a jumping camera's
     /// towards none.
     #[test]
