@@ -291,7 +291,7 @@ pub struct NsffConfig {
     /// Scene flow from its own small space-time grid (this many levels; fast preset) and MLP
     /// instead of the dynamic field's shared head, so the flow terms do not pull the features
     /// that density and colour are made of. 0: the shared head (the vanilla preset's, a jumping
-    /// camera's and an NDC video's); a video in the fast preset takes 4
+    /// camera's and an NDC video's); any other video in the fast preset takes 4
     /// ([`NsffConfig::adapt_to`]).
     #[serde(default)]
     pub flow_levels: usize,
