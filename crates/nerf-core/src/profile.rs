@@ -49,6 +49,14 @@ pub fn report() -> String {
         .collect()
 }
 
+/// The accumulated table, then starts a new one: for phases of one run that cost differently
+/// (NSFF's static warm-up and its space-time steps).
+pub fn take_report() -> String {
+    let out = report();
+    TOTALS.lock().unwrap_or_else(|e| e.into_inner()).clear();
+    out
+}
+
 /// Peak resident memory of this process so far, in bytes (`VmHWM` in `/proc/self/status`;
 /// `None` where that file does not exist).
 pub fn peak_memory_bytes() -> Option<u64> {

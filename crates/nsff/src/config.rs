@@ -249,6 +249,13 @@ pub struct NsffConfig {
     /// so the fog the static field painted goes too; the warm-up then only decides.
     #[serde(default)]
     pub warm_up_exit_restart: bool,
+    /// During the static warm-up, refresh the occupancy grid with the static field's density
+    /// alone (what the warm-up renders) instead of the combined density: the untrained dynamic
+    /// field costs half of each refresh for nothing. On for videos (BENCHMARKS.md §6,
+    /// twenty-sixth session); off for a jumping camera, whose warm-up exit
+    /// (`warm_up_exit_rise`) was chosen with the combined grid; checkpoints from before it read off.
+    #[serde(default)]
+    pub warm_up_static_occupancy: bool,
     /// Random points per step for the dynamic sparsity term (`weights.sparsity`): 1024 for a
     /// video, 512 for a jumping camera.
     #[serde(default = "default_sparsity_points")]
@@ -481,6 +488,7 @@ impl NsffConfig {
             render_step_scale: RENDER_STEP_SCALE,
             warm_up_exit_rise: 0.0,
             warm_up_exit_restart: false,
+            warm_up_static_occupancy: true,
             occupancy_time_bins: default_occupancy_time_bins(),
             frames_per_batch: default_frames_per_batch(),
             warp_neighbours: VIDEO_WARP_NEIGHBOURS,
@@ -551,6 +559,8 @@ impl NsffConfig {
             self.dynamic_grid.time_resolution = Some((cells / JUMPING_FRAMES_PER_TIME_CELL).max(1));
         }
         self.warm_up_exit_rise = 2.0;
+        // The exit rule reads the grid's refill, measured on D-NeRF with the combined density.
+        self.warm_up_static_occupancy = false;
         self.occupancy_time_bins = 8;
         // Full batches: the settings below were chosen with them (a video's half batches were
         // screened on videos only).
@@ -679,7 +689,9 @@ mod tests {
 
     /// A video's step takes half batches and one warp neighbour, and its blend no entropy term;
     /// a jumping camera, whose settings were chosen with full batches and the term, keeps them.
-    /// Both share time on the space-time grid's coarse levels and render at half the step.
+    /// Both share time on the space-time grid's coarse levels and render at half the step. A
+    /// video's warm-up refreshes the occupancy grid from the static field alone; a jumping
+    /// camera's, whose exit rule reads the grid, from the combined density as measured.
     #[test]
     fn videos_halve_the_batches_and_jumping_cameras_keep_them() {
         let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
@@ -687,10 +699,12 @@ mod tests {
         assert_eq!((cfg.sparsity_points, cfg.warp_neighbours), (1024, 1));
         assert_eq!((cfg.weights.entropy, cfg.render_step_scale), (0.0, 0.5));
         assert!(cfg.dynamic_grid.time_follows_space);
+        assert!(cfg.warm_up_static_occupancy);
         cfg.adapt_to_jumping_camera();
         assert_eq!((cfg.static_batch_scale, cfg.space_time_share), (1.0, 1.0));
         assert_eq!(cfg.sparsity_points, 512);
         assert_eq!(cfg.weights.entropy, 1e-3);
+        assert!(!cfg.warm_up_static_occupancy);
     }
 
     /// The flow grid is opt-in (`flow_levels`), with the dynamic grid's time cells and its own

@@ -132,18 +132,24 @@ impl NsffModel {
     }
 
     /// Refreshes the occupancy grid (one time bin of it) with the combined density at one time
-    /// per point, drawn in bin k by `time_in(k)` (see [`occupancy_density`]).
+    /// per point, drawn in bin k by `time_in(k)` (see [`occupancy_density`]); with
+    /// `static_only`, with the static field's density alone (what the static warm-up renders:
+    /// the dynamic field, untrained then, would cost half the refresh for nothing).
     pub fn update_occupancy(
         &mut self,
         step: usize,
         grid_rng: &mut rand::rngs::StdRng,
         mut time_in: impl FnMut(usize) -> f32,
+        static_only: bool,
         device: &Device,
     ) -> Result<(), ModelError> {
         let Some(grid) = self.occupancy.as_mut() else {
             return Ok(());
         };
-        let fields = self.fields.valid();
+        let mut fields = self.fields.valid();
+        if static_only {
+            fields.dynamic = None;
+        }
         let plain = device.clone().inner();
         let mut failed = None;
         let mut density = |p: &[f32], t: &[f32]| -> Vec<f32> {
@@ -218,6 +224,46 @@ mod tests {
     use crate::field::time_column;
     use nerf::config::Preset;
     use nerf_core::field::FieldQuery;
+
+    /// During the static warm-up the occupancy grid follows the static field alone (what the
+    /// warm-up renders): the refresh equals, value for value, a plain grid refreshed with the
+    /// static field's own density query, and differs from the combined density's.
+    #[test]
+    fn a_static_only_refresh_ignores_the_dynamic_field() {
+        use nerf_core::occupancy::OccupancyGrid;
+        use rand::SeedableRng;
+        let device = Device::flex();
+        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
+        cfg.base.fast.occupancy.resolution = 16;
+        let bounds = SceneBounds::object(2.0, 6.0, [[-1.0; 3], [1.0; 3]]);
+        let times: Vec<f32> = (0..10).map(|i| i as f32 / 9.0).collect();
+        let mut model = NsffModel::new(&cfg, bounds.clone(), times, true, &device);
+        let blank = model.occupancy.clone();
+        let mut refreshed = |static_only: bool| {
+            model.occupancy = blank.clone();
+            let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+            model
+                .update_occupancy(0, &mut rng, |_| 0.5, static_only, &device)
+                .unwrap();
+            model.occupancy.as_ref().unwrap().union().values().to_vec()
+        };
+        let got = refreshed(true);
+        let combined = refreshed(false);
+        let mut want = OccupancyGrid::new(cfg.base.fast.occupancy.clone(), bounds.aabb);
+        let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+        want.update(0, model.settings.march.step, &mut rng, &mut |p| {
+            let x = tensor(p.to_vec(), 3, &device);
+            let sigma = model.fields.static_field.density(x, None).sigma;
+            sigma.into_data().try_into_vec_as::<f32>().unwrap()
+        });
+        let want = want.values().to_vec();
+        assert!(want.iter().any(|v| *v > 0.0));
+        assert_eq!(got.len(), want.len());
+        for (g, w) in got.iter().zip(&want) {
+            assert!((g - w).abs() <= 1e-6 * w.abs().max(1e-3), "{g} vs {w}");
+        }
+        assert_ne!(combined, want, "the combined density differs");
+    }
 
     /// The occupancy density uses the same blend as the renderers, b = b_s·g, recomputed here in
     /// f64 from full field queries; the gate starts open.

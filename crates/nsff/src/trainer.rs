@@ -50,6 +50,8 @@ pub struct NsffTrainer {
     note: Option<String>,
     /// Per-frame tile errors for `error_rays` (filled in by the steps, which borrow `self`).
     error_map: Option<RefCell<ErrorMap>>,
+    /// Whether the last step was a static warm-up step (for the profile's phase split).
+    profiling_warm_up: bool,
 }
 
 /// Loads the video dataset a config names and prepares flows and the motion decision.
@@ -162,6 +164,7 @@ impl NsffTrainer {
             occupancy_floor: 1.0,
             note: None,
             error_map,
+            profiling_warm_up: false,
         })
     }
 
@@ -236,6 +239,15 @@ impl NsffTrainer {
             .wrapping_add(self.step as u64);
         let mut rng = StdRng::seed_from_u64(seed);
         let warm_up = self.in_static_warm_up();
+        if !warm_up && self.profiling_warm_up && nerf_core::profile::enabled() {
+            // The loop prints the rest at the end: the two phases' steps cost differently.
+            eprint!(
+                "profile of the static warm-up (steps 0-{}):\n{}",
+                self.step,
+                nerf_core::profile::take_report()
+            );
+        }
+        self.profiling_warm_up = warm_up;
         let Some((loss, stats, static_samples)) =
             span("nsff_step_loss", || self.step_loss(warm_up, &mut rng))?
         else {
@@ -267,6 +279,7 @@ impl NsffTrainer {
                     self.step,
                     &mut grid_rng,
                     |k| in_bin[k][rng.random_range(0..in_bin[k].len())],
+                    warm_up && self.cfg.warm_up_static_occupancy,
                     &self.device,
                 )
             })?;
