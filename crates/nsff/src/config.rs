@@ -43,12 +43,24 @@ pub struct LossWeights {
     /// explains a pixel as well, the pixel goes to it; movers pay and stay dynamic.
     #[serde(default)]
     pub dynamic_share: f64,
+    /// Shortfall of the combined render's dynamic share below [`MOVING_SHARE_FLOOR`] on rays
+    /// inside the motion masks, during the first `moving_dynamic_until` of the space-time phase
+    /// (opt-in; BENCHMARKS.md §6, twenty-seventh session). It keeps the blend from shutting when
+    /// that phase starts: the static field has trained alone, the dynamic field is untrained
+    /// fog, the photometric loss shuts the blend everywhere within tens of steps, and a shut
+    /// sigmoid seldom reopens (the dynamic field then draws nothing).
+    #[serde(default)]
+    pub moving_dynamic: f64,
     /// Spread of the dynamic-only render's weights along each ray ([`crate::losses::
     /// depth_spread`]): each time's geometry is seen by one camera, which a density smeared
     /// along its rays fits as well as a surface.
     #[serde(default)]
     pub depth_spread: f64,
 }
+
+/// The dynamic share `weights.moving_dynamic` asks for on rays inside the motion masks (which
+/// are dilated: they hold static pixels too, so not all of it).
+pub const MOVING_SHARE_FLOOR: f32 = 0.5;
 
 fn default_render_step_scale() -> f32 {
     1.0
@@ -81,6 +93,7 @@ impl Default for LossWeights {
             hidden: default_hidden(),
             still_dynamic: default_still_dynamic(),
             dynamic_share: 0.0,
+            moving_dynamic: 0.0,
             depth_spread: 0.0,
         }
     }
@@ -256,6 +269,13 @@ pub struct NsffConfig {
     /// (`warm_up_exit_rise`) was chosen with the combined grid; checkpoints from before it read off.
     #[serde(default)]
     pub warm_up_static_occupancy: bool,
+    /// Share of the space-time phase during which `weights.moving_dynamic` applies (1: all of
+    /// it). The collapse it prevents happens in the first tens of steps; held all run, it keeps
+    /// the blend open on static rays too (fog off the path: BENCHMARKS.md §6, twenty-seventh
+    /// session). After it the photometric loss shuts the blend where the static field is
+    /// better and keeps it open on the movers.
+    #[serde(default = "default_moving_dynamic_until")]
+    pub moving_dynamic_until: f64,
     /// Random points per step for the dynamic sparsity term (`weights.sparsity`): 1024 for a
     /// video, 512 for a jumping camera.
     #[serde(default = "default_sparsity_points")]
@@ -408,6 +428,10 @@ fn default_warp_neighbours() -> usize {
     2
 }
 
+fn default_moving_dynamic_until() -> f64 {
+    0.2
+}
+
 fn default_min_rays() -> usize {
     64
 }
@@ -489,6 +513,7 @@ impl NsffConfig {
             warm_up_exit_rise: 0.0,
             warm_up_exit_restart: false,
             warm_up_static_occupancy: true,
+            moving_dynamic_until: default_moving_dynamic_until(),
             occupancy_time_bins: default_occupancy_time_bins(),
             frames_per_batch: default_frames_per_batch(),
             warp_neighbours: VIDEO_WARP_NEIGHBOURS,
@@ -700,6 +725,8 @@ mod tests {
         assert_eq!((cfg.weights.entropy, cfg.render_step_scale), (0.0, 0.5));
         assert!(cfg.dynamic_grid.time_follows_space);
         assert!(cfg.warm_up_static_occupancy);
+        // Opt-in: it lost 0.89 dB on one of the tuning videos screened.
+        assert_eq!((cfg.weights.moving_dynamic, cfg.moving_dynamic_until), (0.0, 0.2));
         cfg.adapt_to_jumping_camera();
         assert_eq!((cfg.static_batch_scale, cfg.space_time_share), (1.0, 1.0));
         assert_eq!(cfg.sparsity_points, 512);

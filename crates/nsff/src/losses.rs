@@ -38,6 +38,13 @@ pub fn still_dynamic_share(share: Tensor<2>, still: Vec<f32>) -> Tensor<1> {
     (share * mask).sum() / n
 }
 
+/// Mean shortfall max(0, floor − share) of the dynamic share below `floor` over the rays inside
+/// the motion masks: `share` `[R, 1]` from the combined render, `moving` R host values (1 =
+/// inside the frame's motion mask). 0 when no ray moves.
+pub fn moving_dynamic_share(share: Tensor<2>, moving: Vec<f32>, floor: f32) -> Tensor<1> {
+    still_dynamic_share((share.neg() + floor).clamp_min(0.0), moving)
+}
+
 /// One-sided entropy −b·log(b + 1e-8), averaged: pushes blend weights towards 0 or 1.
 pub fn entropy(b: Tensor<2>) -> Tensor<1> {
     (b.clone() * (b + 1e-8).log()).neg().mean()
@@ -245,6 +252,17 @@ mod tests {
 
     fn t2(v: &[f32], c: usize, dev: &Device) -> Tensor<2> {
         nerf::renderer::tensor(v.to_vec(), c, dev)
+    }
+
+    #[test]
+    fn moving_dynamic_share_averages_the_shortfall_over_moving_rays() {
+        let dev = Device::flex();
+        let share = t2(&[0.5, 0.9, 0.1, 0.0], 1, &dev);
+        let l = moving_dynamic_share(share, vec![1.0, 1.0, 0.0, 1.0], 0.6);
+        // Moving rays: shortfalls 0.1, 0 and 0.6.
+        assert!((l.into_scalar::<f32>() - 0.7 / 3.0).abs() < 1e-6);
+        let none = moving_dynamic_share(t2(&[0.0], 1, &dev), vec![0.0], 0.6);
+        assert_eq!(none.into_scalar::<f32>(), 0.0);
     }
 
     #[test]

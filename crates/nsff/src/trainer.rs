@@ -2,7 +2,7 @@
 //! renders (all through the shared render function) and the loss terms of `losses.rs`.
 //! Bookkeeping (budgets, checkpoints, metrics log, progress, plot) is the static pipeline's loop.
 
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 use std::path::{Path, PathBuf};
 
 use burn::tensor::{Device, Tensor};
@@ -52,7 +52,21 @@ pub struct NsffTrainer {
     error_map: Option<RefCell<ErrorMap>>,
     /// Whether the last step was a static warm-up step (for the profile's phase split).
     profiling_warm_up: bool,
+    /// The blend on the last sampled space-time batch's rays (the status line's readout).
+    blend_readout: Cell<Option<BlendReadout>>,
 }
+
+/// How far the blend b = b_s·g opens on a batch's rays inside and outside the motion masks:
+/// the mean over rays of each ray's largest b. A blend that stays shut on the moving rays
+/// means the static field draws the movers and the dynamic field is unused.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BlendReadout {
+    pub moving: f32,
+    pub still: f32,
+}
+
+/// Space-time steps between two blend readouts (each reads the batch's blend back).
+const BLEND_READOUT_EVERY: usize = 50;
 
 /// Loads the video dataset a config names and prepares flows and the motion decision.
 pub fn load_video(cfg: &NsffConfig, run_dir: &Path, quiet: bool) -> Result<Video> {
@@ -165,6 +179,7 @@ impl NsffTrainer {
             note: None,
             error_map,
             profiling_warm_up: false,
+            blend_readout: Cell::new(None),
         })
     }
 
@@ -509,10 +524,18 @@ impl NsffTrainer {
         let q = query_space_time(&self.model, dynamic, rays, &samples, t, dev);
         let (x, dirs, st, dy) = (&q.x, &q.dirs, &q.st, &q.dy);
         let (b_s, gate) = (st.extras.expect(BLEND), dy.extras.expect(GATE));
+        if self.step.is_multiple_of(BLEND_READOUT_EVERY) {
+            let blend =
+                nerf_core::readback::read_back((b_s.clone() * gate.clone()).detach().inner(), "blend")?;
+            let moving = batch.per_ray(|k, p| v.motion_masks[k][p as usize]);
+            self.blend_readout
+                .set(Some(blend_readout(&blend, &samples.offsets, &moving)));
+        }
 
         // Combined render, scored over the uniform and error-map rays, not NSFF's hard-mined
         // ones (they would bias the blend).
-        let share = wts.still_dynamic > 0.0 || wts.dynamic_share > 0.0;
+        let moving_share = wts.moving_dynamic > 0.0 && self.after_warm_up() < self.cfg.moving_dynamic_until;
+        let share = wts.still_dynamic > 0.0 || wts.dynamic_share > 0.0 || moving_share;
         let combined = render_combined(&self.model, rays, &samples, &q, ds.background, share, dev);
         let n_u = batch.n_uniform;
         let mse_cb = losses::mse(
@@ -539,6 +562,13 @@ impl NsffTrainer {
             still.truncate(n_u);
             let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
             loss = loss + losses::still_dynamic_share(share, still) * wts.still_dynamic;
+        }
+        if moving_share {
+            let mut moving = batch.per_ray(|k, p| f32::from(u8::from(v.motion_masks[k][p as usize])));
+            moving.truncate(n_u);
+            let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
+            let short = losses::moving_dynamic_share(share, moving, crate::config::MOVING_SHARE_FLOOR);
+            loss = loss + short * (wts.moving_dynamic * decay);
         }
         if wts.hidden > 0.0 {
             let hidden = losses::hidden_dynamic_depth(
@@ -1014,6 +1044,25 @@ fn pixel_colours(view: &nerf_data::View, pixels: &[u32]) -> Vec<f32> {
         .collect()
 }
 
+/// [`BlendReadout`] of per-sample blends `blend` on rays split by `offsets`, `moving` telling
+/// which rays are inside the motion masks (a side without rays reads 0).
+fn blend_readout(blend: &[f32], offsets: &[u32], moving: &[bool]) -> BlendReadout {
+    let (mut sum, mut count) = ([0.0f64; 2], [0usize; 2]);
+    for (r, w) in offsets.windows(2).enumerate() {
+        let top = blend[w[0] as usize..w[1] as usize]
+            .iter()
+            .fold(0.0f32, |a, &b| a.max(b));
+        let side = usize::from(moving[r]);
+        sum[side] += f64::from(top);
+        count[side] += 1;
+    }
+    let mean = |i: usize| (sum[i] / count[i].max(1) as f64) as f32;
+    BlendReadout {
+        moving: mean(1),
+        still: mean(0),
+    }
+}
+
 fn stats(mse: f64, rays: usize, samples: usize) -> StepStats {
     StepStats {
         loss: mse,
@@ -1062,7 +1111,11 @@ impl nerf::train_loop::Trainable for NsffTrainer {
         self.note.take()
     }
     fn status(&self) -> String {
-        self.model
+        let blend = self.blend_readout.get().map_or(String::new(), |b| {
+            format!(", blend {:.3} moving / {:.3} still", b.moving, b.still)
+        });
+        let grid = self
+            .model
             .occupancy
             .as_ref()
             .map_or(String::new(), |o| match o.num_bins() {
@@ -1072,7 +1125,8 @@ impl nerf::train_loop::Trainable for NsffTrainer {
                     100.0 * o.occupied_fraction(),
                     100.0 * o.mean_bin_fraction()
                 ),
-            })
+            });
+        grid + &blend
     }
 }
 
@@ -1088,6 +1142,18 @@ mod tests {
 
     /// One neighbour of two: drawn at random (both directions come up), weighted 2 so the sum
     /// of the terms keeps its expectation; where only one exists, or both are kept, weight 1.
+    #[test]
+    fn the_blend_readout_averages_each_ray_s_largest_blend_per_side() {
+        // Rays: [0.1, 0.7] moving, [0.2] still, [] moving (no samples: reads 0), [0.5, 0.3] still.
+        let blend = [0.1, 0.7, 0.2, 0.5, 0.3];
+        let offsets = [0, 2, 3, 3, 5];
+        let b = blend_readout(&blend, &offsets, &[true, false, true, false]);
+        assert!((b.moving - (0.7 + 0.0) / 2.0).abs() < 1e-6, "{b:?}");
+        assert!((b.still - (0.2 + 0.5) / 2.0).abs() < 1e-6, "{b:?}");
+        let none = blend_readout(&blend[..2], &offsets[..2], &[true]);
+        assert_eq!(none.still, 0.0);
+    }
+
     #[test]
     fn one_warp_neighbour_is_drawn_and_reweighted() {
         let mut rng = StdRng::seed_from_u64(3);
