@@ -1140,8 +1140,6 @@ mod tests {
         grids.iter().map(|g| g.table()).collect()
     }
 
-    /// One neighbour of two: drawn at random (both directions come up), weighted 2 so the sum
-    /// of the terms keeps its expectation; where only one exists, or both are kept, weight 1.
     #[test]
     fn the_blend_readout_averages_each_ray_s_largest_blend_per_side() {
         // Rays: [0.1, 0.7] moving, [0.2] still, [] moving (no samples: reads 0), [0.5, 0.3] still.
@@ -1154,6 +1152,8 @@ mod tests {
         assert_eq!(none.still, 0.0);
     }
 
+    /// One neighbour of two: drawn at random (both directions come up), weighted 2 so the sum
+    /// of the terms keeps its expectation; where only one exists, or both are kept, weight 1.
     #[test]
     fn one_warp_neighbour_is_drawn_and_reweighted() {
         let mut rng = StdRng::seed_from_u64(3);
