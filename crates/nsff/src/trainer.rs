@@ -60,9 +60,9 @@ pub struct NsffTrainer {
 /// the mean over rays of each ray's largest b. A blend that stays shut on the moving rays
 /// means the static field draws the movers and the dynamic field is unused.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct BlendReadout {
-    pub moving: f32,
-    pub still: f32,
+struct BlendReadout {
+    moving: f32,
+    still: f32,
 }
 
 /// Space-time steps between two blend readouts (each reads the batch's blend back).
@@ -117,6 +117,11 @@ impl FrameBatch {
             out.extend(self.pixels[range.clone()].iter().map(|&p| f(*k, p)));
         }
         out
+    }
+
+    /// Per ray, 1 where its frame's motion mask is `inside` at its pixel, else 0.
+    fn mask_weights(&self, masks: &[Vec<bool>], inside: bool) -> Vec<f32> {
+        self.per_ray(|k, p| f32::from(u8::from(masks[k][p as usize] == inside)))
     }
 }
 
@@ -558,13 +563,13 @@ impl NsffTrainer {
             loss = loss + losses::still_dynamic_share(share, vec![1.0; n_u]) * wts.dynamic_share;
         }
         if wts.still_dynamic > 0.0 {
-            let mut still = batch.per_ray(|k, p| if v.motion_masks[k][p as usize] { 0.0 } else { 1.0 });
+            let mut still = batch.mask_weights(&v.motion_masks, false);
             still.truncate(n_u);
             let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
             loss = loss + losses::still_dynamic_share(share, still) * wts.still_dynamic;
         }
         if moving_share {
-            let mut moving = batch.per_ray(|k, p| f32::from(u8::from(v.motion_masks[k][p as usize])));
+            let mut moving = batch.mask_weights(&v.motion_masks, true);
             moving.truncate(n_u);
             let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
             let short = losses::moving_dynamic_share(share, moving, crate::config::MOVING_SHARE_FLOOR);
@@ -616,7 +621,7 @@ impl NsffTrainer {
             loss = loss + spread * wts.depth_spread;
         }
         let dyn_photo = if self.cfg.dynamic_photo_masked {
-            let moving = batch.per_ray(|k, p| f32::from(u8::from(v.motion_masks[k][p as usize])));
+            let moving = batch.mask_weights(&v.motion_masks, true);
             losses::wmse(dyn_only.rgb.clone(), target.clone(), tensor(moving, 1, dev))
         } else {
             losses::mse(dyn_only.rgb.clone(), target.clone())
