@@ -568,13 +568,6 @@ impl NsffTrainer {
             let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
             loss = loss + losses::still_dynamic_share(share, still) * wts.still_dynamic;
         }
-        if moving_share {
-            let mut moving = batch.mask_weights(&v.motion_masks, true);
-            moving.truncate(n_u);
-            let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
-            let short = losses::moving_dynamic_share(share, moving, crate::config::MOVING_SHARE_FLOOR);
-            loss = loss + short * (wts.moving_dynamic * decay);
-        }
         if wts.hidden > 0.0 {
             let hidden = losses::hidden_dynamic_depth(
                 &st.sigma,
@@ -627,6 +620,23 @@ impl NsffTrainer {
             losses::mse(dyn_only.rgb.clone(), target.clone())
         };
         loss = loss + dyn_photo * wts.dynamic_photo;
+        if moving_share {
+            // Open the blend where the dynamic field already fits the mover better, shut it on
+            // the still rays.
+            let better = dynamic_explains_better(&combined.rgb, &dyn_only.rgb, target, n_u)?;
+            let moving: Vec<f32> = batch.mask_weights(&v.motion_masks, true)[..n_u]
+                .iter()
+                .zip(better)
+                .map(|(&m, b)| m * f32::from(u8::from(b)))
+                .collect();
+            let mut still = batch.mask_weights(&v.motion_masks, false);
+            still.truncate(n_u);
+            let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
+            let short =
+                losses::moving_dynamic_share(share.clone(), moving, crate::config::MOVING_SHARE_FLOOR);
+            let held = short + losses::still_dynamic_share(share, still);
+            loss = loss + held * (wts.moving_dynamic * decay);
+        }
         // Monocular disparity, up to an unknown scale and shift per frame: one frame's rays only.
         if let (Some(disp), true, 1) = (&v.disparity[k], wts.depth > 0.0, batch.groups.len()) {
             let prior: Vec<f32> = batch.pixels.iter().map(|&p| disp[p as usize]).collect();
@@ -1068,6 +1078,24 @@ fn blend_readout(blend: &[f32], offsets: &[u32], moving: &[bool]) -> BlendReadou
     }
 }
 
+/// Which of the first `n` rays the dynamic-only render (`[R, 3]`) fits better than the combined
+/// one (`[R, 3]`), against `target` `[R, 3]`: where opening the blend would help.
+fn dynamic_explains_better(
+    combined: &Tensor<2>,
+    dynamic: &Tensor<2>,
+    target: &Tensor<2>,
+    n: usize,
+) -> Result<Vec<bool>> {
+    let err = |rgb: &Tensor<2>| -> Result<Vec<f32>> {
+        let e = (rgb.clone().detach().slice([0..n, 0..3]) - target.clone().slice([0..n, 0..3]))
+            .powf_scalar(2.0)
+            .sum_dim(1);
+        Ok(nerf_core::readback::read_back(e.inner(), "ray errors")?)
+    };
+    let (cb, dy) = (err(combined)?, err(dynamic)?);
+    Ok(cb.iter().zip(&dy).map(|(c, d)| d < c).collect())
+}
+
 fn stats(mse: f64, rays: usize, samples: usize) -> StepStats {
     StepStats {
         loss: mse,
@@ -1155,6 +1183,18 @@ mod tests {
         assert!((b.still - (0.2 + 0.5) / 2.0).abs() < 1e-6, "{b:?}");
         let none = blend_readout(&blend[..2], &offsets[..2], &[true]);
         assert_eq!(none.still, 0.0);
+    }
+
+    #[test]
+    fn the_dynamic_render_is_better_where_its_squared_error_is_smaller() {
+        let dev = Device::default();
+        let t = |v: &[f32]| tensor(v.to_vec(), 3, &dev);
+        let target = t(&[0.5, 0.5, 0.5, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0]);
+        // Ray 0: dynamic nearer; ray 1: combined nearer; ray 2: past `n`, not read.
+        let combined = t(&[0.9, 0.5, 0.5, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        let dynamic = t(&[0.6, 0.6, 0.5, 0.0, 0.3, 0.0, 1.0, 1.0, 1.0]);
+        let better = dynamic_explains_better(&combined, &dynamic, &target, 2).unwrap();
+        assert_eq!(better, vec![true, false]);
     }
 
     /// One neighbour of two: drawn at random (both directions come up), weighted 2 so the sum
