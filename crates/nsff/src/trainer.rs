@@ -547,14 +547,17 @@ impl NsffTrainer {
             combined.rgb.clone().slice([0..n_u, 0..3]),
             target.clone().slice([0..n_u, 0..3]),
         );
+        // Per-ray errors of the combined render, read back once for the error map and the
+        // blend term.
+        let combined_err = if self.error_map.is_some() || moving_share {
+            ray_errors(&combined.rgb, target)?
+        } else {
+            Vec::new()
+        };
         if let Some(map) = &self.error_map {
-            let err = (combined.rgb.clone().detach() - target.clone())
-                .powf_scalar(2.0)
-                .sum_dim(1);
-            let err = nerf_core::readback::read_back(err.inner(), "ray errors")?;
             let mut map = map.borrow_mut();
             for (frame, range) in &batch.groups {
-                map.record(*frame, &batch.pixels[range.clone()], &err[range.clone()]);
+                map.record(*frame, &batch.pixels[range.clone()], &combined_err[range.clone()]);
             }
         }
         let mut loss = mse_cb.clone();
@@ -623,11 +626,11 @@ impl NsffTrainer {
         if moving_share {
             // Open the blend where the dynamic field already fits the mover better, shut it on
             // the still rays.
-            let better = dynamic_explains_better(&combined.rgb, &dyn_only.rgb, target, n_u)?;
+            let dyn_err = ray_errors(&dyn_only.rgb, target)?;
             let moving: Vec<f32> = batch.mask_weights(&v.motion_masks, true)[..n_u]
                 .iter()
-                .zip(better)
-                .map(|(&m, b)| m * f32::from(u8::from(b)))
+                .zip(dyn_err.iter().zip(&combined_err))
+                .map(|(&m, (d, c))| if d < c { m } else { 0.0 })
                 .collect();
             let mut still = batch.mask_weights(&v.motion_masks, false);
             still.truncate(n_u);
@@ -1078,22 +1081,13 @@ fn blend_readout(blend: &[f32], offsets: &[u32], moving: &[bool]) -> BlendReadou
     }
 }
 
-/// Which of the first `n` rays the dynamic-only render (`[R, 3]`) fits better than the combined
-/// one (`[R, 3]`), against `target` `[R, 3]`: where opening the blend would help.
-fn dynamic_explains_better(
-    combined: &Tensor<2>,
-    dynamic: &Tensor<2>,
-    target: &Tensor<2>,
-    n: usize,
-) -> Result<Vec<bool>> {
-    let err = |rgb: &Tensor<2>| -> Result<Vec<f32>> {
-        let e = (rgb.clone().detach().slice([0..n, 0..3]) - target.clone().slice([0..n, 0..3]))
-            .powf_scalar(2.0)
-            .sum_dim(1);
-        Ok(nerf_core::readback::read_back(e.inner(), "ray errors")?)
-    };
-    let (cb, dy) = (err(combined)?, err(dynamic)?);
-    Ok(cb.iter().zip(&dy).map(|(c, d)| d < c).collect())
+/// Squared colour error per ray of `rgb` `[R, 3]` against `target` `[R, 3]`, detached and
+/// read back (R values).
+fn ray_errors(rgb: &Tensor<2>, target: &Tensor<2>) -> Result<Vec<f32>> {
+    let err = (rgb.clone().detach() - target.clone())
+        .powf_scalar(2.0)
+        .sum_dim(1);
+    Ok(nerf_core::readback::read_back(err.inner(), "ray errors")?)
 }
 
 fn stats(mse: f64, rays: usize, samples: usize) -> StepStats {
@@ -1186,14 +1180,17 @@ mod tests {
     }
 
     #[test]
-    fn the_dynamic_render_is_better_where_its_squared_error_is_smaller() {
+    fn ray_errors_sum_the_squared_colour_differences() {
         let dev = Device::default();
         let t = |v: &[f32]| tensor(v.to_vec(), 3, &dev);
-        let target = t(&[0.5, 0.5, 0.5, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0]);
-        // Ray 0: dynamic nearer; ray 1: combined nearer; ray 2: past `n`, not read.
-        let combined = t(&[0.9, 0.5, 0.5, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0]);
-        let dynamic = t(&[0.6, 0.6, 0.5, 0.0, 0.3, 0.0, 1.0, 1.0, 1.0]);
-        let better = dynamic_explains_better(&combined, &dynamic, &target, 2).unwrap();
+        let target = t(&[0.5, 0.5, 0.5, 0.0, 0.0, 0.0]);
+        let combined = ray_errors(&t(&[0.9, 0.5, 0.5, 0.1, 0.0, 0.0]), &target).unwrap();
+        let dynamic = ray_errors(&t(&[0.6, 0.6, 0.5, 0.0, 0.3, 0.0]), &target).unwrap();
+        for (got, want) in combined.iter().chain(&dynamic).zip([0.16, 0.01, 0.02, 0.09]) {
+            assert!((got - want).abs() < 1e-6, "{combined:?} {dynamic:?}");
+        }
+        // Ray 0: the dynamic render nearer; ray 1: the combined one.
+        let better: Vec<bool> = dynamic.iter().zip(&combined).map(|(d, c)| d < c).collect();
         assert_eq!(better, vec![true, false]);
     }
 
