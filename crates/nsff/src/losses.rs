@@ -15,6 +15,13 @@ pub fn mse(a: Tensor<2>, b: Tensor<2>) -> Tensor<1> {
     (a - b).powi_scalar(2).mean()
 }
 
+/// Mean squared error with a weight per row (`weights` `[N, 1]`): Σ w·(a − b)² / (N·C), so
+/// rows of weight 1 count as in [`mse`] and the others less (unlike [`wmse`], which
+/// renormalises by the weights).
+pub fn row_weighted_mse(a: Tensor<2>, b: Tensor<2>, weights: Tensor<2>) -> Tensor<1> {
+    ((a - b).powi_scalar(2) * weights).mean()
+}
+
 /// Mask-weighted mean squared error; `mask` is `[N, 1]`.
 pub fn wmse(a: Tensor<2>, b: Tensor<2>, mask: Tensor<2>) -> Tensor<1> {
     let c = a.dims()[1] as f32;
@@ -252,6 +259,26 @@ mod tests {
 
     fn t2(v: &[f32], c: usize, dev: &Device) -> Tensor<2> {
         nerf::renderer::tensor(v.to_vec(), c, dev)
+    }
+
+    /// Against a float64 recomputation: rows of weight 1 count as in the plain mean, the
+    /// others scaled; all weights 1 is `mse`.
+    #[test]
+    fn row_weighted_mse_scales_rows_without_renormalising() {
+        let dev = Device::flex();
+        let a = [0.2f32, 0.4, 0.9, 0.0, 1.0, 0.5];
+        let b = [0.1f32, 0.4, 0.3, 0.5, 0.0, 0.5];
+        let w = [1.0f32, 0.25];
+        let mut want = 0f64;
+        for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+            want += f64::from(w[i / 3]) * (f64::from(*x) - f64::from(*y)).powi(2);
+        }
+        want /= 6.0;
+        let got = row_weighted_mse(t2(&a, 3, &dev), t2(&b, 3, &dev), t2(&w, 1, &dev));
+        assert!((f64::from(got.into_scalar::<f32>()) - want).abs() < 1e-6);
+        let ones = row_weighted_mse(t2(&a, 3, &dev), t2(&b, 3, &dev), t2(&[1.0, 1.0], 1, &dev));
+        let plain = mse(t2(&a, 3, &dev), t2(&b, 3, &dev));
+        assert!((ones.into_scalar::<f32>() - plain.into_scalar::<f32>()).abs() < 1e-7);
     }
 
     #[test]

@@ -619,6 +619,11 @@ impl NsffTrainer {
         let dyn_photo = if self.cfg.dynamic_photo_masked {
             let moving = batch.mask_weights(&v.motion_masks, true);
             losses::wmse(dyn_only.rgb.clone(), target.clone(), tensor(moving, 1, dev))
+        } else if self.cfg.dynamic_photo_still < 1.0 {
+            // Still rays count less; moving rays weigh as in the plain mean.
+            let still = self.cfg.dynamic_photo_still;
+            let w = batch.per_ray(|k, p| if v.motion_masks[k][p as usize] { 1.0 } else { still });
+            losses::row_weighted_mse(dyn_only.rgb.clone(), target.clone(), tensor(w, 1, dev))
         } else {
             losses::mse(dyn_only.rgb.clone(), target.clone())
         };
