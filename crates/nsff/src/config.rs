@@ -222,8 +222,9 @@ pub struct NsffConfig {
     /// Weight of the dynamic-only render's photometric loss on rays outside the frame's motion
     /// mask, against 1 inside it (1: NSFF's whole frames; `dynamic_photo_masked` is 0). Below 1
     /// the dynamic field learns less of the static scene, which it otherwise draws over the static
-    /// field's wherever the blend lets it. Videos take 0.25, a jumping camera 1; checkpoints from
-    /// before it read 1 (their runs go on as they started).
+    /// field's wherever the blend lets it. Opt-in: at 0.25 it lost 0.25 dB on fam3 to a run of
+    /// the default on the same day (BENCHMARKS.md §6, thirtieth session). Meaningless for a
+    /// jumping camera, which has no motion masks.
     #[serde(default = "default_dynamic_photo_still")]
     pub dynamic_photo_still: f32,
     /// Samples of the static batch per step, as a share of the static pipeline's
@@ -416,12 +417,6 @@ const VIDEO_ENTROPY: f64 = 0.0;
 // twenty-ninth sessions).
 const VIDEO_MOVING_DYNAMIC: f64 = 0.01;
 
-// A video's dynamic-only render scores the rays outside the motion masks at a quarter weight, so
-// the dynamic field learns less of the static scene it then draws over the static field's:
-// +0.10 dB over the six tuning videos at 600 s, +0.05 off the path, better on five of six
-// (BENCHMARKS.md §6, thirtieth session).
-const VIDEO_DYNAMIC_PHOTO_STILL: f32 = 0.25;
-
 fn default_sparsity_points() -> usize {
     2048
 }
@@ -529,7 +524,7 @@ impl NsffConfig {
             static_batch_scale: VIDEO_STATIC_BATCH_SCALE,
             space_time_share: VIDEO_SPACE_TIME_SHARE,
             dynamic_photo_masked: false,
-            dynamic_photo_still: VIDEO_DYNAMIC_PHOTO_STILL,
+            dynamic_photo_still: default_dynamic_photo_still(),
             static_warm_up: 0.3,
             warm_up_masked: 0.0,
             warm_up_random_background: false,
@@ -624,9 +619,6 @@ impl NsffConfig {
         self.weights.entropy = LossWeights::default().entropy;
         // The blend term was screened on videos only; a jumping camera keeps the entropy term.
         self.weights.moving_dynamic = LossWeights::default().moving_dynamic;
-        // So was the still rays' weight in the dynamic-only render (a jumping camera has no
-        // motion masks): NSFF's whole frames.
-        self.dynamic_photo_still = default_dynamic_photo_still();
         // No optical flow, so no flow term trains a flow grid: the shared head, as screened.
         self.flow_levels = 0;
         self.flow_detach_weights = false;
@@ -770,9 +762,7 @@ mod tests {
     /// a jumping camera, whose settings were chosen with full batches and the term, keeps them.
     /// Both share time on the space-time grid's coarse levels and render at half the step. A
     /// video's warm-up refreshes the occupancy grid from the static field alone; a jumping
-    /// camera's, whose exit rule reads the grid, from the combined density as measured. A
-    /// video's dynamic-only render weighs its still rays at a quarter; a jumping camera's, which
-    /// has no motion masks, weighs every ray alike.
+    /// camera's, whose exit rule reads the grid, from the combined density as measured.
     #[test]
     fn videos_halve_the_batches_and_jumping_cameras_keep_them() {
         let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
@@ -785,9 +775,7 @@ mod tests {
             (cfg.weights.moving_dynamic, cfg.moving_dynamic_until),
             (0.01, 0.2)
         );
-        assert_eq!(cfg.dynamic_photo_still, 0.25);
         cfg.adapt_to_jumping_camera();
-        assert_eq!(cfg.dynamic_photo_still, 1.0);
         assert_eq!((cfg.static_batch_scale, cfg.space_time_share), (1.0, 1.0));
         assert_eq!(cfg.sparsity_points, 512);
         assert_eq!((cfg.weights.entropy, cfg.weights.moving_dynamic), (1e-3, 0.0));
