@@ -61,6 +61,15 @@ pub struct LossWeights {
     /// along its rays fits as well as a surface.
     #[serde(default)]
     pub depth_spread: f64,
+    /// Photometric loss of the static field alone on the space-time batch's rays, each weighted
+    /// by the combined render's static share (1 − its dynamic share, held fixed) where that
+    /// dynamic share is below `static_claimed_below`: what the blend gives the static field, the
+    /// static field must draw alone. It renders the static query the combined render made (no
+    /// extra field query). Without it the static field stops learning once the dynamic field
+    /// draws, above all on the static pixels inside the dilated motion masks, which the static
+    /// batch never sees (BENCHMARKS.md §6, thirtieth and thirty-first sessions).
+    #[serde(default)]
+    pub static_claimed: f64,
 }
 
 /// The dynamic share `weights.moving_dynamic` asks for on rays inside the motion masks (which
@@ -100,6 +109,7 @@ impl Default for LossWeights {
             dynamic_share: 0.0,
             moving_dynamic: 0.0,
             depth_spread: 0.0,
+            static_claimed: 0.0,
         }
     }
 }
@@ -227,6 +237,11 @@ pub struct NsffConfig {
     /// jumping camera, which has no motion masks.
     #[serde(default = "default_dynamic_photo_still")]
     pub dynamic_photo_still: f32,
+    /// `weights.static_claimed` counts only the rays whose dynamic share is below this (1: all
+    /// rays; lower spares the movers' rays, whose share the blend term holds at a floor, and
+    /// which at 1 cost the views between frames).
+    #[serde(default = "default_static_claimed_below")]
+    pub static_claimed_below: f32,
     /// Samples of the static batch per step, as a share of the static pipeline's
     /// `target_samples` (its ray count adapts to keep it, as `nerf train`'s does): at 1 the static
     /// batch is a `nerf train` step. Videos take 0.5, a jumping camera 1.
@@ -447,6 +462,10 @@ fn default_warp_neighbours() -> usize {
     2
 }
 
+fn default_static_claimed_below() -> f32 {
+    1.0
+}
+
 fn default_dynamic_photo_still() -> f32 {
     1.0
 }
@@ -525,6 +544,7 @@ impl NsffConfig {
             space_time_share: VIDEO_SPACE_TIME_SHARE,
             dynamic_photo_masked: false,
             dynamic_photo_still: default_dynamic_photo_still(),
+            static_claimed_below: default_static_claimed_below(),
             static_warm_up: 0.3,
             warm_up_masked: 0.0,
             warm_up_random_background: false,
@@ -666,6 +686,12 @@ impl NsffConfig {
                 self.dynamic_photo_still
             ));
         }
+        if !(self.static_claimed_below > 0.0 && self.static_claimed_below <= 1.0) {
+            return Err(format!(
+                "static_claimed_below must be in (0, 1], got {}",
+                self.static_claimed_below
+            ));
+        }
         if !(0.0..=1.0).contains(&self.flow_weights_share) {
             return Err(format!(
                 "flow_weights_share must be in [0, 1], got {}",
@@ -752,6 +778,18 @@ mod tests {
             let mut cfg = fresh();
             cfg.dynamic_photo_still = w;
             assert_eq!(cfg.validate().is_ok(), ok, "weight {w}");
+        }
+        // The static field's claim on a ray ends at a dynamic share in (0, 1].
+        for (below, ok) in [
+            (1.0, true),
+            (0.1, true),
+            (0.0, false),
+            (1.5, false),
+            (f32::NAN, false),
+        ] {
+            let mut cfg = fresh();
+            cfg.static_claimed_below = below;
+            assert_eq!(cfg.validate().is_ok(), ok, "below {below}");
         }
         let mut cfg = fresh();
         cfg.adapt_to_jumping_camera();

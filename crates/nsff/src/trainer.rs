@@ -540,7 +540,8 @@ impl NsffTrainer {
         // Combined render, scored over the uniform and error-map rays, not NSFF's hard-mined
         // ones (they would bias the blend).
         let moving_share = wts.moving_dynamic > 0.0 && self.after_warm_up() < self.cfg.moving_dynamic_until;
-        let share = wts.still_dynamic > 0.0 || wts.dynamic_share > 0.0 || moving_share;
+        let share =
+            wts.still_dynamic > 0.0 || wts.dynamic_share > 0.0 || wts.static_claimed > 0.0 || moving_share;
         let combined = render_combined(&self.model, rays, &samples, &q, ds.background, share, dev);
         let n_u = batch.n_uniform;
         let mse_cb = losses::mse(
@@ -570,6 +571,22 @@ impl NsffTrainer {
             still.truncate(n_u);
             let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
             loss = loss + losses::still_dynamic_share(share, still) * wts.still_dynamic;
+        }
+        if wts.static_claimed > 0.0 {
+            // The static field alone, from the query the combined render made, on the rays the
+            // combined render gives it.
+            let alone = Component::new(st.sigma.clone(), st.rgb.clone());
+            let rgb = self.render(rays, &samples, &[alone]).rgb.slice([0..n_u, 0..3]);
+            let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]).detach();
+            let share = nerf_core::readback::read_back(share.inner(), "dynamic share")?;
+            let below = self.cfg.static_claimed_below;
+            let claimed = share
+                .iter()
+                .map(|&s| if s < below { (1.0 - s).clamp(0.0, 1.0) } else { 0.0 })
+                .collect();
+            let target = target.clone().slice([0..n_u, 0..3]);
+            let photo = losses::wmse(rgb, target, tensor(claimed, 1, dev));
+            loss = loss + photo * wts.static_claimed;
         }
         if wts.hidden > 0.0 {
             let hidden = losses::hidden_dynamic_depth(
@@ -1267,6 +1284,57 @@ mod tests {
         assert!(
             diff(&dyn_through, &dyn_without) > 1e-4 * scale,
             "the share through the weights did not reach the dynamic grid"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// The static field's photometric term on the rays the combined render gives it reaches the
+    /// static field and not the dynamic field: it renders the static query alone.
+    #[test]
+    fn the_static_claim_reaches_the_static_field_only() {
+        let dir = std::env::temp_dir().join(format!("nsff-static-claim-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let (mut cfg, video) = video_scene(&dir);
+        cfg.dynamic = DynamicMode::On;
+        cfg.adapt_to(&video.dataset, video.frames.len());
+        cfg.static_warm_up = 0.0;
+        let mut t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
+        let statics = t.model.fields.static_field.host_params();
+        let dynamics = t.model.fields.dynamic.as_ref().unwrap().host_params();
+        // (static grid, dynamic grid) gradients of one space-time step's loss, same draws.
+        let mut grads = |claimed: f64, below: f32| {
+            (t.cfg.weights.static_claimed, t.cfg.static_claimed_below) = (claimed, below);
+            statics.iter().chain(&dynamics).for_each(|g| g.zero_grad());
+            let (loss, _, _) = t
+                .step_loss(false, &mut StdRng::seed_from_u64(5))
+                .unwrap()
+                .unwrap();
+            let _ = loss.backward();
+            (statics[0].grad(), dynamics[0].grad())
+        };
+        let (static_without, dynamic_without) = grads(0.0, 1.0);
+        let diff = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        let scale = |g: &[f32]| g.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+        assert!(
+            scale(&dynamic_without) > 0.0,
+            "no gradient reached the dynamic grid"
+        );
+        for below in [1.0, 0.1] {
+            let (static_with, dynamic_with) = grads(1.0, below);
+            assert!(
+                diff(&dynamic_with, &dynamic_without) <= 1e-6 * scale(&dynamic_without),
+                "below {below}: the static term moved the dynamic grid"
+            );
+            assert!(
+                diff(&static_with, &static_without) > 1e-3 * scale(&static_without),
+                "below {below}: the static term did not reach the static grid"
+            );
+        }
+        // A ray whose dynamic share is not below the threshold is not claimed.
+        let (static_none, _) = grads(1.0, 1e-12);
+        assert!(
+            diff(&static_none, &static_without) <= 1e-6 * scale(&static_without),
+            "rays above the threshold reached the static grid"
         );
         let _ = std::fs::remove_dir_all(&dir);
     }
