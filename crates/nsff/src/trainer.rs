@@ -1240,18 +1240,10 @@ mod tests {
     /// With a share of the term through the weights, the term reaches it too.
     #[test]
     fn the_detached_flow_term_reaches_the_flow_grid_only() {
-        let dir = std::env::temp_dir().join(format!("nsff-flow-share-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let (mut cfg, video) = video_scene(&dir);
-        cfg.dynamic = DynamicMode::On;
-        cfg.adapt_to(&video.dataset, video.frames.len());
-        cfg.static_warm_up = 0.0;
-        cfg.flow_levels = 3;
-        cfg.flow_detach_weights = true;
-        let run_dir = dir.join("run");
-        // One model for every setting (the device's initialisation draws are shared with tests
-        // running beside this one).
-        let mut t = NsffTrainer::new(cfg, video, &run_dir).unwrap();
+        let (dir, mut t) = space_time_trainer("nsff-flow-share", |cfg| {
+            cfg.flow_levels = 3;
+            cfg.flow_detach_weights = true;
+        });
         assert!(t.video.flow_fwd.iter().any(Option::is_some), "no optical flow");
         let grids = t.model.fields.dynamic.as_ref().unwrap().host_params();
         assert_eq!(grids.len(), 2, "the dynamic grid and the flow grid");
@@ -1270,8 +1262,8 @@ mod tests {
         let (dyn_without, flow_without) = grads(0.0, 0.0);
         let (dyn_detached, flow_detached) = grads(0.5, 0.0);
         let (dyn_through, _) = grads(0.5, 0.5);
-        let diff = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
-        let scale = dyn_without.iter().fold(0.0f32, |m, g| m.max(g.abs()));
+        let diff = max_abs_diff;
+        let scale = max_abs(&dyn_without);
         assert!(scale > 0.0, "no gradient reached the dynamic grid");
         assert!(
             diff(&dyn_detached, &dyn_without) <= 1e-6 * scale,
@@ -1292,13 +1284,7 @@ mod tests {
     /// static field and not the dynamic field: it renders the static query alone.
     #[test]
     fn the_static_claim_reaches_the_static_field_only() {
-        let dir = std::env::temp_dir().join(format!("nsff-static-claim-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let (mut cfg, video) = video_scene(&dir);
-        cfg.dynamic = DynamicMode::On;
-        cfg.adapt_to(&video.dataset, video.frames.len());
-        cfg.static_warm_up = 0.0;
-        let mut t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
+        let (dir, mut t) = space_time_trainer("nsff-static-claim", |_| {});
         let statics = t.model.fields.static_field.host_params();
         let dynamics = t.model.fields.dynamic.as_ref().unwrap().host_params();
         // (static grid, dynamic grid) gradients of one space-time step's loss, same draws.
@@ -1313,8 +1299,7 @@ mod tests {
             (statics[0].grad(), dynamics[0].grad())
         };
         let (static_without, dynamic_without) = grads(0.0, 1.0);
-        let diff = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
-        let scale = |g: &[f32]| g.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+        let (diff, scale) = (max_abs_diff, max_abs);
         assert!(
             scale(&dynamic_without) > 0.0,
             "no gradient reached the dynamic grid"
@@ -1473,6 +1458,28 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
         let (cfg, video) = video_scene(&dir);
         (dir, cfg, video)
+    }
+
+    /// A trainer on a small video that starts in the space-time phase (no static warm-up), the
+    /// dynamic field on, `tweak` applied to its settings; with the temporary folder to remove.
+    fn space_time_trainer(name: &str, tweak: impl FnOnce(&mut NsffConfig)) -> (PathBuf, NsffTrainer) {
+        let (dir, mut cfg, video) = temp_video(name);
+        cfg.dynamic = DynamicMode::On;
+        cfg.adapt_to(&video.dataset, video.frames.len());
+        cfg.static_warm_up = 0.0;
+        tweak(&mut cfg);
+        // One model per test, its settings changed between the steps compared (the device's
+        // initialisation draws are shared with tests running beside it).
+        let t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
+        (dir, t)
+    }
+
+    fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
+        a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    }
+
+    fn max_abs(g: &[f32]) -> f32 {
+        g.iter().fold(0.0, |m, x| m.max(x.abs()))
     }
 
     /// A small generated video (smooth camera path) under `dir/video`, loaded.
