@@ -1,24 +1,81 @@
 //! Flow cache in NSFF's `flow_i1/` layout (method.md §4.1): `{i:05}_fwd.npz` for frames
 //! 0..N−2 and `{i:05}_bwd.npz` for frames 1..N−1, each with `flow` (H×W×2 float32, pixels) and
 //! `mask` (H×W float32, 0/1). NSFF's own loader and [`nerf_data::video::load`] read these files.
+//! Beside them, `key.txt` holds [`cache_key`]: what the flows were computed from. A cache whose
+//! key differs (another video in the same run folder, other settings, no key) is not read.
 
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
+use nerf_data::Image;
 use nerf_data::dataset::FlowField;
 use nerf_data::error::{DataError, Result};
 
+use crate::FlowParams;
+
 type Flows = (Vec<Option<FlowField>>, Vec<Option<FlowField>>);
+
+const KEY_FILE: &str = "key.txt";
+
+/// What a cache of the flows of `frames` (in time order) computed with `params` is keyed by:
+/// the frame count and size, a 64-bit FNV-1a hash of every frame's pixels, and the settings.
+/// Two videos of the same size differ in their hash, so a run folder reused for another video
+/// recomputes its flows instead of reading the old ones.
+pub fn cache_key(frames: &[&Image], params: &FlowParams) -> String {
+    let mut hash = Fnv::new();
+    for image in frames {
+        hash.write(&image.width.to_le_bytes());
+        hash.write(&image.height.to_le_bytes());
+        hash.write(&image.channels.to_le_bytes());
+        for v in &image.data {
+            hash.write(&v.to_bits().to_le_bytes());
+        }
+    }
+    let size = frames.first().map_or((0, 0), |i| (i.width, i.height));
+    format!(
+        "frames {} size {}x{} pixels {:016x}\nflow {params:?}\n",
+        frames.len(),
+        size.0,
+        size.1,
+        hash.0
+    )
+}
+
+/// 64-bit FNV-1a: a stable, dependency-free fingerprint (not a cryptographic one).
+struct Fnv(u64);
+
+impl Fnv {
+    fn new() -> Self {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+}
 
 fn flow_path(dir: &Path, i: usize, direction: &str) -> PathBuf {
     dir.join(format!("{i:05}_{direction}.npz"))
 }
 
 /// Writes every present field of `fwd` and `bwd` (indexed by frame) into `dir` (created if
-/// needed). Each file is written atomically, so an interrupted run leaves whole files only and
-/// [`read_flow_cache`] sees an incomplete cache rather than a corrupt one.
-pub fn write_flow_cache(dir: &Path, fwd: &[Option<FlowField>], bwd: &[Option<FlowField>]) -> Result<()> {
+/// needed), then `key` ([`cache_key`]). Each file is written atomically and the key goes last
+/// (an older one is removed first), so an interrupted run leaves a cache that
+/// [`read_flow_cache`] does not read rather than a mixed one.
+pub fn write_flow_cache(
+    dir: &Path,
+    key: &str,
+    fwd: &[Option<FlowField>],
+    bwd: &[Option<FlowField>],
+) -> Result<()> {
+    let key_path = dir.join(KEY_FILE);
+    match std::fs::remove_file(&key_path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(DataError::io(&key_path, e)),
+        _ => {}
+    }
     let jobs: Vec<(PathBuf, &FlowField)> = [(fwd, "fwd"), (bwd, "bwd")]
         .into_iter()
         .flat_map(|(fields, direction)| {
@@ -29,7 +86,8 @@ pub fn write_flow_cache(dir: &Path, fwd: &[Option<FlowField>], bwd: &[Option<Flo
         })
         .collect();
     jobs.par_iter()
-        .try_for_each(|(path, field)| write_field(path, field))
+        .try_for_each(|(path, field)| write_field(path, field))?;
+    nerf_data::image::write_atomic(&key_path, key.as_bytes())
 }
 
 fn write_field(path: &Path, field: &FlowField) -> Result<()> {
@@ -52,15 +110,26 @@ fn write_field(path: &Path, field: &FlowField) -> Result<()> {
     nerf_data::image::write_atomic(path, &zip)
 }
 
-/// Reads the cache for `n_frames` frames of `width` x `height`. `Ok(None)` when `dir` or any of
-/// the expected files is missing (compute the flows, then write the cache). A file that exists
-/// but is unreadable or has the wrong shape is an error naming it (e.g. a cache left over from
-/// another resolution), since silently recomputing would hide a mixed-up folder.
-///
-/// The cache does not record which images it came from; key `dir` by the video and resolution.
-pub fn read_flow_cache(dir: &Path, n_frames: usize, width: u32, height: u32) -> Result<Option<Flows>> {
+/// Reads the cache for `n_frames` frames of `width` x `height` computed as `key` says
+/// ([`cache_key`]). `Ok(None)` when `dir`, its key or any of the expected files is missing, or
+/// the key differs (compute the flows, then write the cache). A file of a cache whose key matches
+/// but that is unreadable or has the wrong shape is an error naming it: the folder was damaged.
+pub fn read_flow_cache(
+    dir: &Path,
+    key: &str,
+    n_frames: usize,
+    width: u32,
+    height: u32,
+) -> Result<Option<Flows>> {
     if !dir.is_dir() {
         return Ok(None);
+    }
+    let key_path = dir.join(KEY_FILE);
+    match std::fs::read(&key_path) {
+        Ok(stored) if stored == key.as_bytes() => {}
+        Ok(_) => return Ok(None),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(DataError::io(&key_path, e)),
     }
     let wanted: Vec<(usize, &str)> = (0..n_frames)
         .flat_map(|i| [(i, "fwd"), (i, "bwd")])

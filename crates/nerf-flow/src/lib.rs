@@ -65,7 +65,8 @@
 //! # Cache
 //! [`write_flow_cache`] / [`read_flow_cache`] store the flows as NSFF does (`{i:05}_fwd.npz`,
 //! `{i:05}_bwd.npz` with `flow` and `mask`), read back by the same code as
-//! [`nerf_data::video::load`]'s `flow_i1/` priors.
+//! [`nerf_data::video::load`]'s `flow_i1/` priors, and key them to the frames and settings they
+//! came from ([`cache_key`]).
 
 mod baselines;
 mod cache;
@@ -75,7 +76,7 @@ mod tvl1;
 
 use rayon::prelude::*;
 
-pub use cache::{read_flow_cache, write_flow_cache};
+pub use cache::{cache_key, read_flow_cache, write_flow_cache};
 pub use motion::{
     LOW_PARALLAX_PX, MIN_MOVING_FRACTION, MaskRule, MotionReport, chained_flow, epipolar_errors,
     fundamental_matrix, independent_motion, motion_masks, motion_stride,

@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use nerf_data::{Camera, FlowField, Image, Pose};
 use nerf_flow::{
-    FlowParams, MIN_MOVING_FRACTION, MaskRule, chained_flow, consistency_mask, epipolar_errors,
+    FlowParams, MIN_MOVING_FRACTION, MaskRule, cache_key, chained_flow, consistency_mask, epipolar_errors,
     estimate_flow, fundamental_matrix, independent_motion, motion_masks, motion_stride, read_flow_cache,
     video_flows, write_flow_cache,
 };
@@ -600,19 +600,26 @@ fn flow_cache_round_trips_and_reports_bad_files() {
     let tmp = TempDir::new("cache");
     let dir = tmp.0.join("flow_i1");
     let (w, h, n) = (12u32, 8u32, 5usize);
-    assert!(read_flow_cache(&dir, n, w, h).unwrap().is_none(), "no folder yet");
+    let key = "video A\n";
+    assert!(
+        read_flow_cache(&dir, key, n, w, h).unwrap().is_none(),
+        "no folder yet"
+    );
     let (fwd, bwd) = some_fields(w, h, n);
-    write_flow_cache(&dir, &fwd, &bwd).unwrap();
+    write_flow_cache(&dir, key, &fwd, &bwd).unwrap();
     let mut names: Vec<String> = std::fs::read_dir(&dir)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     names.sort();
-    assert_eq!(names.len(), 2 * (n - 1), "{names:?}");
+    assert_eq!(names.len(), 2 * (n - 1) + 1, "{names:?}");
     assert_eq!(names[0], "00000_fwd.npz");
     assert!(names.contains(&"00004_bwd.npz".to_string()) && !names.contains(&"00004_fwd.npz".to_string()));
+    assert_eq!(std::fs::read_to_string(dir.join("key.txt")).unwrap(), key);
 
-    let (rf, rb) = read_flow_cache(&dir, n, w, h).unwrap().expect("complete cache");
+    let (rf, rb) = read_flow_cache(&dir, key, n, w, h)
+        .unwrap()
+        .expect("complete cache");
     assert_eq!((rf, rb), (fwd.clone(), bwd.clone()));
 
     // The NSFF video loader reads the same files (it is the reader the cache uses).
@@ -620,15 +627,18 @@ fn flow_cache_round_trips_and_reports_bad_files() {
     assert_eq!(arrays["flow"].shape, vec![h as usize, w as usize, 2]);
     assert_eq!(arrays["mask"].shape, vec![h as usize, w as usize]);
 
+    // Another video (or other settings): not read, so recomputed.
+    assert!(read_flow_cache(&dir, "video B\n", n, w, h).unwrap().is_none());
     // More frames than cached: incomplete, so None (recompute).
-    assert!(read_flow_cache(&dir, n + 1, w, h).unwrap().is_none());
+    assert!(read_flow_cache(&dir, key, n + 1, w, h).unwrap().is_none());
 
-    // A file of the wrong resolution is an error naming the file and both shapes.
+    // A file of the wrong resolution under a matching key is an error naming the file and both
+    // shapes: the folder was damaged, not left by another video.
     let (small_fwd, small_bwd) = some_fields(6, 4, n);
     let other = tmp.0.join("other");
-    write_flow_cache(&other, &small_fwd, &small_bwd).unwrap();
+    write_flow_cache(&other, key, &small_fwd, &small_bwd).unwrap();
     std::fs::copy(other.join("00003_fwd.npz"), dir.join("00003_fwd.npz")).unwrap();
-    let err = read_flow_cache(&dir, n, w, h).unwrap_err().to_string();
+    let err = read_flow_cache(&dir, key, n, w, h).unwrap_err().to_string();
     assert!(
         err.contains("00003_fwd.npz") && err.contains("flow is 4x6x2 but frames are 8x12"),
         "{err}"
@@ -636,7 +646,48 @@ fn flow_cache_round_trips_and_reports_bad_files() {
 
     // A missing file makes the cache incomplete rather than an error.
     std::fs::remove_file(dir.join("00003_fwd.npz")).unwrap();
-    assert!(read_flow_cache(&dir, n, w, h).unwrap().is_none());
+    assert!(read_flow_cache(&dir, key, n, w, h).unwrap().is_none());
+
+    // Rewriting under a new key replaces the key; a cache without one (an older run's) is not read.
+    write_flow_cache(&dir, "video B\n", &fwd, &bwd).unwrap();
+    assert!(read_flow_cache(&dir, key, n, w, h).unwrap().is_none());
+    assert!(read_flow_cache(&dir, "video B\n", n, w, h).unwrap().is_some());
+    std::fs::remove_file(dir.join("key.txt")).unwrap();
+    assert!(read_flow_cache(&dir, "video B\n", n, w, h).unwrap().is_none());
+}
+
+#[test]
+fn the_cache_key_follows_the_pixels_and_the_settings() {
+    let a = Video::render(Preset::Dynamic, 0);
+    let b = Video::render(Preset::Dynamic, 1);
+    let (fa, fb) = (a.frames.clone(), b.frames.clone());
+    fn refs(f: &[Image]) -> Vec<&Image> {
+        f.iter().collect()
+    }
+    let params = FlowParams::default();
+    let key_a = cache_key(&refs(&fa), &params);
+    assert_eq!(key_a, cache_key(&refs(&fa), &params), "deterministic");
+    assert!(
+        key_a.starts_with(&format!(
+            "frames {} size {}x{} ",
+            fa.len(),
+            fa[0].width,
+            fa[0].height
+        )),
+        "{key_a}"
+    );
+    // Same size and frame count, other pixels.
+    assert_eq!((fa.len(), fa[0].width), (fb.len(), fb[0].width));
+    assert_ne!(key_a, cache_key(&refs(&fb), &params));
+    // One pixel of one frame changed by one step of 8 bits.
+    let mut touched = fa.clone();
+    touched[3].data[17] += 1.0 / 255.0;
+    assert_ne!(key_a, cache_key(&refs(&touched), &params));
+    let other = FlowParams {
+        warps: params.warps + 1,
+        ..params
+    };
+    assert_ne!(key_a, cache_key(&refs(&fa), &other));
 }
 
 #[test]

@@ -115,12 +115,35 @@ fn score(
     let (mut truth, mut total) = (0usize, 0usize);
     let mut hit = [0usize; 3];
     let mut masked = [0usize; 3];
+    let mut objects = vec![ObjectTally::default(); scene.objects.len()];
     for (k, &v) in video.frames.iter().enumerate() {
         let view = &video.dataset.views[v];
         let (w, h) = (view.image.width as usize, view.image.height as usize);
-        let ids = scene
-            .render(&view.camera, view.time.unwrap_or(0.0) as f64)
-            .object_id;
+        let time = view.time.unwrap_or(0.0) as f64;
+        let traced = scene.render(&view.camera, time);
+        let next = video.frames.get(k + 1).map(|&n| &video.dataset.views[n]);
+        for (p, &id) in traced.object_id.iter().enumerate() {
+            let Some(tally) = usize::try_from(id).ok().and_then(|i| objects.get_mut(i)) else {
+                continue;
+            };
+            tally.pixels += 1;
+            tally.masked += usize::from(video.motion_masks[k][p]);
+            let (Some(next), Some(flow)) = (next, video.flow_fwd[k].as_ref()) else {
+                continue;
+            };
+            let (u, v) = ((p % w) as f64 + 0.5, (p / w) as f64 + 0.5);
+            let ray = view.camera.direction(u, v);
+            let origin = view.camera.pose.translation;
+            let depth = traced.depth[p] as f64;
+            let point: [f64; 3] = std::array::from_fn(|c| origin[c] + depth * ray[c]);
+            let moved = scene.object_scene_flow(id as usize, point, time, next.time.unwrap_or(0.0) as f64);
+            if let Some((u1, v1, _)) = next.camera.project(std::array::from_fn(|c| point[c] + moved[c])) {
+                tally.epe +=
+                    (flow.flow[2 * p] as f64 - (u1 - u)).hypot(flow.flow[2 * p + 1] as f64 - (v1 - v));
+                tally.flow_pixels += 1;
+            }
+        }
+        let ids = traced.object_id;
         let gt: Vec<bool> = ids
             .iter()
             .map(|&i| i >= 0 && movers.contains(&(i as usize)))
@@ -175,5 +198,25 @@ fn score(
         pct(hit[1], masked[1]),
         pct(hit[2], masked[2]),
     );
+    for (object, t) in scene.objects.iter().zip(&objects) {
+        println!(
+            "    {:<12} {:<6} | {:.1} % of the pixels | {:.1} % in mask | flow EPE {:.2} px",
+            object.name,
+            if object.is_moving() { "mover" } else { "static" },
+            pct(t.pixels, total),
+            pct(t.masked, t.pixels),
+            t.epe / t.flow_pixels.max(1) as f64,
+        );
+    }
     Ok(())
+}
+
+/// One object's pixels over all frames: how many, how many inside the mask, and the sum of the
+/// one-step flow's end-point error over those with a next frame to project into.
+#[derive(Clone, Default)]
+struct ObjectTally {
+    pixels: usize,
+    masked: usize,
+    epe: f64,
+    flow_pixels: usize,
 }

@@ -1251,13 +1251,9 @@ mod tests {
         let mut grads = |optical_flow: f64, share: f32| {
             t.cfg.weights.optical_flow = optical_flow;
             t.cfg.flow_weights_share = share;
-            grids.iter().for_each(|g| g.zero_grad());
-            let (loss, _, _) = t
-                .step_loss(false, &mut StdRng::seed_from_u64(11))
-                .unwrap()
-                .unwrap();
-            let _ = loss.backward();
-            (grids[0].grad(), grids[1].grad())
+            let mut g = step_grads(&t, &grids, 11);
+            let flow = g.pop().unwrap();
+            (g.pop().unwrap(), flow)
         };
         let (dyn_without, flow_without) = grads(0.0, 0.0);
         let (dyn_detached, flow_detached) = grads(0.5, 0.0);
@@ -1287,16 +1283,12 @@ mod tests {
         let (dir, mut t) = space_time_trainer("nsff-static-claim", |_| {});
         let statics = t.model.fields.static_field.host_params();
         let dynamics = t.model.fields.dynamic.as_ref().unwrap().host_params();
+        let grids: Vec<_> = statics.iter().chain(&dynamics).cloned().collect();
         // (static grid, dynamic grid) gradients of one space-time step's loss, same draws.
         let mut grads = |claimed: f64, below: f32| {
             (t.cfg.weights.static_claimed, t.cfg.static_claimed_below) = (claimed, below);
-            statics.iter().chain(&dynamics).for_each(|g| g.zero_grad());
-            let (loss, _, _) = t
-                .step_loss(false, &mut StdRng::seed_from_u64(5))
-                .unwrap()
-                .unwrap();
-            let _ = loss.backward();
-            (statics[0].grad(), dynamics[0].grad())
+            let mut g = step_grads(&t, &grids, 5);
+            (std::mem::take(&mut g[0]), std::mem::take(&mut g[statics.len()]))
         };
         let (static_without, dynamic_without) = grads(0.0, 1.0);
         let (diff, scale) = (max_abs_diff, max_abs);
@@ -1472,6 +1464,22 @@ mod tests {
         // initialisation draws are shared with tests running beside it).
         let t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
         (dir, t)
+    }
+
+    /// The gradients of `grids` from one space-time step's loss, its draws seeded by `seed` (the
+    /// same rays and samples on every call), the grids' earlier gradients cleared first.
+    fn step_grads(
+        t: &NsffTrainer,
+        grids: &[std::sync::Arc<nerf_core::encoding::HashGrid>],
+        seed: u64,
+    ) -> Vec<Vec<f32>> {
+        grids.iter().for_each(|g| g.zero_grad());
+        let (loss, _, _) = t
+            .step_loss(false, &mut StdRng::seed_from_u64(seed))
+            .unwrap()
+            .unwrap();
+        let _ = loss.backward();
+        grids.iter().map(|g| g.grad()).collect()
     }
 
     fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {

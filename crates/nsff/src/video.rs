@@ -155,7 +155,10 @@ pub fn prepare(
     if !complete {
         let first = &dataset.views[frames[0]].image;
         let (w, h) = (first.width, first.height);
-        match nerf_flow::read_flow_cache(cache_dir, n, w, h)? {
+        let images: Vec<&nerf_data::Image> = frames.iter().map(|&f| &dataset.views[f].image).collect();
+        let params = nerf_flow::FlowParams::default();
+        let key = nerf_flow::cache_key(&images, &params);
+        match nerf_flow::read_flow_cache(cache_dir, &key, n, w, h)? {
             Some((f, b)) => {
                 (flow_fwd, flow_bwd) = (f, b);
             }
@@ -166,10 +169,8 @@ pub fn prepare(
                         cache_dir.display()
                     );
                 }
-                let images: Vec<&nerf_data::Image> =
-                    frames.iter().map(|&f| &dataset.views[f].image).collect();
-                let (f, b) = nerf_flow::video_flows(&images, &nerf_flow::FlowParams::default());
-                nerf_flow::write_flow_cache(cache_dir, &f, &b)?;
+                let (f, b) = nerf_flow::video_flows(&images, &params);
+                nerf_flow::write_flow_cache(cache_dir, &key, &f, &b)?;
                 (flow_fwd, flow_bwd) = (f, b);
             }
         }
@@ -245,5 +246,34 @@ mod tests {
         let mut mask = vec![true, true, true, false];
         unmask_background(&mut mask, &[0.0, 0.5, 1.0, 0.0]);
         assert_eq!(mask, vec![false, true, true, false]);
+    }
+
+    /// A run folder reused for another video of the same size computes that video's flows
+    /// rather than reading the first one's (the cache is keyed to the frames).
+    #[test]
+    fn a_reused_flow_cache_follows_the_video() {
+        let dir = std::env::temp_dir().join(format!("nsff-flow-cache-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let load = |seed: u64| {
+            let data = dir.join(format!("video{seed}"));
+            let synth = nerf_synth::SynthConfig::new(nerf_synth::Preset::Dynamic)
+                .with_seed(seed)
+                .with_size(32, 24)
+                .with_views(6, 2);
+            nerf_synth::generate(&synth, &data).unwrap();
+            nerf_data::load::load_video(&data, &nerf_data::LoadOptions::default()).unwrap()
+        };
+        let rule = nerf_flow::MaskRule::either(0.35);
+        let prepare =
+            |seed: u64, cache: &str| prepare(load(seed), &dir.join(cache), 1.0, rule, false, true).unwrap();
+        let first = prepare(0, "shared");
+        let second = prepare(1, "shared");
+        let fresh = prepare(1, "fresh");
+        assert_ne!(first.flow_fwd, fresh.flow_fwd, "the two videos' flows differ");
+        assert_eq!(second.flow_fwd, fresh.flow_fwd);
+        assert_eq!(second.flow_bwd, fresh.flow_bwd);
+        // And the shared folder now holds the second video's flows, read back as they are.
+        assert_eq!(prepare(1, "shared").flow_fwd, fresh.flow_fwd);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
