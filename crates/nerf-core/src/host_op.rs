@@ -62,7 +62,12 @@ pub trait HostKernel: Send + Sync + Debug + 'static {
 #[derive(Clone, Debug)]
 pub struct KernelRef(pub Arc<dyn HostKernel>);
 
-#[backend_extension(Flex: cfg(feature = "flex"), NdArray: cfg(feature = "ndarray"), Autodiff)]
+#[backend_extension(
+    Flex: cfg(feature = "flex"),
+    NdArray: cfg(feature = "ndarray"),
+    Cube: cfg(any(feature = "wgpu", feature = "cuda")),
+    Autodiff
+)]
 pub trait HostOps: Backend {
     /// Runs `kernel` on the first `arity` of four inputs (all float tensors on one device). The
     /// arity is fixed because the dispatch macro routes bare tensor arguments only; callers pad
@@ -102,34 +107,36 @@ fn run_plain<B: Backend>(
     from_host::<B>(kernel.0.forward(&host), &device)
 }
 
-#[cfg(feature = "flex")]
-impl HostOps for burn::backend::Flex {
-    fn host_op(
-        a: FloatTensor<Self>,
-        b: FloatTensor<Self>,
-        c: FloatTensor<Self>,
-        d: FloatTensor<Self>,
-        arity: usize,
-        kernel: KernelRef,
-    ) -> FloatTensor<Self> {
-        run_plain::<Self>([a, b, c, d], arity, &kernel)
-    }
+/// A backend that runs the kernels on host slices ([`run_plain`]).
+macro_rules! host_ops_on_host {
+    ($backend:ty) => {
+        impl HostOps for $backend {
+            fn host_op(
+                a: FloatTensor<Self>,
+                b: FloatTensor<Self>,
+                c: FloatTensor<Self>,
+                d: FloatTensor<Self>,
+                arity: usize,
+                kernel: KernelRef,
+            ) -> FloatTensor<Self> {
+                run_plain::<Self>([a, b, c, d], arity, &kernel)
+            }
+        }
+    };
 }
 
+#[cfg(feature = "flex")]
+host_ops_on_host!(burn::backend::Flex);
+
 #[cfg(feature = "ndarray")]
-#[allow(deprecated)]
-impl HostOps for burn::backend::NdArray {
-    fn host_op(
-        a: FloatTensor<Self>,
-        b: FloatTensor<Self>,
-        c: FloatTensor<Self>,
-        d: FloatTensor<Self>,
-        arity: usize,
-        kernel: KernelRef,
-    ) -> FloatTensor<Self> {
-        run_plain::<Self>([a, b, c, d], arity, &kernel)
-    }
-}
+host_ops_on_host!(burn::backend::NdArray);
+
+// The GPU backends (every cubecl runtime is burn's one `Cube` backend) run the kernels on the
+// host too: each call reads its inputs back and uploads its output, so a GPU step pays two
+// transfers per fused kernel. Correct everywhere, fast on a CPU; GPU kernels of their own are
+// future work (BENCHMARKS.md §9).
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+host_ops_on_host!(burn::backend::Cube);
 
 /// What the backward pass keeps: the host copies of inputs and output, the kernel, the device.
 #[derive(Clone)]

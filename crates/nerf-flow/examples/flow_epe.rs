@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo run -p nerf-flow --release --example flow_epe -- [--preset dynamic] [--seed 0]
-//!     [--method tvl1|hs|lk|all] [--size 128x96] [--frames 24]
+//!     [--method tvl1|hs|lk|all] [--size 128x96] [--frames 24] [--min-size 8]
 //! ```
 //! The crate docs of `nerf_flow` quote its output (`--method all`).
 
@@ -29,6 +29,7 @@ fn methods(args: &[String]) -> Result<Vec<(&'static str, FlowParams)>, String> {
     let tv = TvL1Params::default();
     let base = FlowParams {
         scale_step: num("--step", d.scale_step)?,
+        min_size: num("--min-size", d.min_size as f32)? as u32,
         warps: num("--warps", d.warps as f32)? as u32,
         iterations: num("--iters", d.iterations as f32)? as u32,
         median_radius: num("--median", d.median_radius as f32)? as u32,

@@ -6,7 +6,7 @@
 //! [`estimate_flow`] is coarse-to-fine TV-L1 (Zach et al. 2007; Wedel et al. 2009), written from
 //! the papers' description:
 //! 1. luma in [0, 255], Gaussian pre-smoothing (σ = 0.5 px);
-//! 2. a pyramid with factor 0.5 down to a shorter side of at least 16 px (Gaussian
+//! 2. a pyramid with factor 0.5 down to a shorter side of at least 8 px (Gaussian
 //!    anti-aliasing before each resampling);
 //! 3. per level, 5 warps: the second image and its gradients are warped by the current flow with
 //!    bicubic interpolation, the data term is linearised, and up to 100 iterations of the
@@ -38,7 +38,10 @@
 //! preserving regulariser nearly halve the Horn–Schunck error, which blurs motion boundaries.
 //! Other choices, measured on seed 0 at 128×96 unless stated: bicubic rather than bilinear
 //! warping (0.168 → 0.165 px), Huber-TV rather than TV (0.165 → 0.145 px), λ = 0.5 rather
-//! than the usual 8-bit 0.15 (512×288: 0.313 → 0.263 px). Tried and dropped: a
+//! than the usual 8-bit 0.15 (512×288: 0.313 → 0.263 px), a coarsest level of 8 px rather than
+//! 16 (one more level at 128×96; `--preset family --seed 4`, a tuning video with a striped wall,
+//! 0.662 → 0.278 px, worst pair 3.84 → 0.94 px; the dynamic preset's seeds 0-2 and 512×288
+//! unchanged to 0.001 px; `flow_epe --min-size`). Tried and dropped: a
 //! structure-texture decomposition (0.168 → 0.214 px: our renders have no exposure changes to
 //! remove), pyramid factor 0.7 or 10 warps (about 5% lower EPE for 1.5-2× the time).
 //! A pure translation of an analytic texture by (2.3, −1.7) px is recovered to 0.005 px.
@@ -111,7 +114,8 @@ pub struct FlowParams {
     pub method: FlowMethod,
     /// Size ratio between successive pyramid levels, in (0, 1).
     pub scale_step: f32,
-    /// The coarsest level keeps its shorter side at least this many pixels.
+    /// The coarsest level keeps its shorter side at least this many pixels (8: striped walls
+    /// that move a stripe's width or more between frames are tracked, see the crate docs).
     pub min_size: u32,
     /// At most this many levels (the full-resolution level included).
     pub max_levels: u32,
@@ -135,7 +139,7 @@ impl Default for FlowParams {
         FlowParams {
             method: FlowMethod::default(),
             scale_step: 0.5,
-            min_size: 16,
+            min_size: 8,
             max_levels: 6,
             warps: 5,
             iterations: 100,
