@@ -121,25 +121,22 @@ fn score(
         let (w, h) = (view.image.width as usize, view.image.height as usize);
         let time = view.time.unwrap_or(0.0) as f64;
         let traced = scene.render(&view.camera, time);
-        let next = video.frames.get(k + 1).map(|&n| &video.dataset.views[n]);
+        // The generator's exact flow to the next frame (every hit in front of its camera).
+        let exact = video.frames.get(k + 1).map(|&n| {
+            let next = &video.dataset.views[n];
+            scene
+                .optical_flow(&view.camera, time, &next.camera, next.time.unwrap_or(0.0) as f64)
+                .0
+        });
         for (p, &id) in traced.object_id.iter().enumerate() {
             let Some(tally) = usize::try_from(id).ok().and_then(|i| objects.get_mut(i)) else {
                 continue;
             };
             tally.pixels += 1;
             tally.masked += usize::from(video.motion_masks[k][p]);
-            let (Some(next), Some(flow)) = (next, video.flow_fwd[k].as_ref()) else {
-                continue;
-            };
-            let (u, v) = ((p % w) as f64 + 0.5, (p / w) as f64 + 0.5);
-            let ray = view.camera.direction(u, v);
-            let origin = view.camera.pose.translation;
-            let depth = traced.depth[p] as f64;
-            let point: [f64; 3] = std::array::from_fn(|c| origin[c] + depth * ray[c]);
-            let moved = scene.object_scene_flow(id as usize, point, time, next.time.unwrap_or(0.0) as f64);
-            if let Some((u1, v1, _)) = next.camera.project(std::array::from_fn(|c| point[c] + moved[c])) {
-                tally.epe +=
-                    (flow.flow[2 * p] as f64 - (u1 - u)).hypot(flow.flow[2 * p + 1] as f64 - (v1 - v));
+            if let (Some(exact), Some(flow)) = (&exact, video.flow_fwd[k].as_ref()) {
+                tally.epe += f64::from(flow.flow[2 * p] - exact[2 * p])
+                    .hypot(f64::from(flow.flow[2 * p + 1] - exact[2 * p + 1]));
                 tally.flow_pixels += 1;
             }
         }
