@@ -241,7 +241,7 @@ pub fn sparsity(blend_s: Tensor<2>, gate: Tensor<2>, sigma_dy: Tensor<2>, step: 
 
 /// The dynamic field's consistency along its scene flow: a point x at time t and the point it
 /// flows to, x + f(x, t), at the neighbouring frame's time hold the same matter. With each
-/// sample's dynamic opacity α = 1 − exp(−g·σ_dy·δ) (gate g, march interval δ), the squared
+/// sample's dynamic opacity α = 1 − exp(−g·σ_dy·δ) (gate g, `deltas` δ `[S, 1]`), the squared
 /// difference of α plus the squared colour difference weighted by the mean of the two α (held
 /// fixed), averaged over the `[S, 1]` samples (colour over its 3 channels too). The warped
 /// render asks only that the integral along one ray match; this asks it of every sample, so a
