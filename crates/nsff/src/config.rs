@@ -74,6 +74,14 @@ pub struct LossWeights {
     /// the point its scene flow moves it to at the warped neighbour's time.
     #[serde(default)]
     pub field_consistency: f64,
+    /// Still matter persists: at a random share (`still_share`) of the space-time batch's
+    /// samples, [`crate::losses::field_consistency`] between the dynamic field at (x, t) and at
+    /// the same x at another random frame's time, each sample weighted by
+    /// [`crate::losses::still_gate`] of the scene flow at both (so movers are spared). A static
+    /// object the motion masks hold is drawn by the dynamic field frame by frame; a frame whose
+    /// camera saw it edge-on otherwise has it thin or missing off the camera path.
+    #[serde(default)]
+    pub still_persistence: f64,
 }
 
 /// The dynamic share `weights.moving_dynamic` asks for on rays inside the motion masks (which
@@ -115,6 +123,7 @@ impl Default for LossWeights {
             depth_spread: 0.0,
             static_claimed: 0.0,
             field_consistency: 0.0,
+            still_persistence: 0.0,
         }
     }
 }
@@ -247,6 +256,14 @@ pub struct NsffConfig {
     /// which at 1 cost the views between frames).
     #[serde(default = "default_static_claimed_below")]
     pub static_claimed_below: f32,
+    /// Share of the space-time batch's samples that `weights.still_persistence` compares with
+    /// another frame's time (one extra dynamic-field query on them).
+    #[serde(default = "default_still_share")]
+    pub still_share: f32,
+    /// The scene-flow length, as a share of the scene box's largest side, at which
+    /// `weights.still_persistence`'s gate falls to e⁻¹ ([`crate::losses::still_gate`]).
+    #[serde(default = "default_still_flow_scale")]
+    pub still_flow_scale: f32,
     /// Samples of the static batch per step, as a share of the static pipeline's
     /// `target_samples` (its ray count adapts to keep it, as `nerf train`'s does): at 1 the static
     /// batch is a `nerf train` step. Videos take 0.5, a jumping camera 1.
@@ -478,6 +495,14 @@ fn default_static_claimed_below() -> f32 {
     1.0
 }
 
+fn default_still_share() -> f32 {
+    0.25
+}
+
+fn default_still_flow_scale() -> f32 {
+    1e-3
+}
+
 fn default_dynamic_photo_still() -> f32 {
     1.0
 }
@@ -558,6 +583,8 @@ impl NsffConfig {
             dynamic_photo_masked: false,
             dynamic_photo_still: default_dynamic_photo_still(),
             static_claimed_below: default_static_claimed_below(),
+            still_share: default_still_share(),
+            still_flow_scale: default_still_flow_scale(),
             static_warm_up: 0.3,
             warm_up_masked: 0.0,
             warm_up_random_background: false,
@@ -654,6 +681,7 @@ impl NsffConfig {
         self.weights.moving_dynamic = LossWeights::default().moving_dynamic;
         // The consistency term was screened on videos only.
         self.weights.field_consistency = LossWeights::default().field_consistency;
+        self.weights.still_persistence = LossWeights::default().still_persistence;
         // No optical flow, so no flow term trains a flow grid: the shared head, as screened.
         self.flow_levels = 0;
         self.flow_detach_weights = false;
@@ -705,6 +733,15 @@ impl NsffConfig {
             return Err(format!(
                 "static_claimed_below must be in (0, 1], got {}",
                 self.static_claimed_below
+            ));
+        }
+        if !(self.still_share > 0.0 && self.still_share <= 1.0) {
+            return Err(format!("still_share must be in (0, 1], got {}", self.still_share));
+        }
+        if !(self.still_flow_scale > 0.0 && self.still_flow_scale.is_finite()) {
+            return Err(format!(
+                "still_flow_scale must be positive, got {}",
+                self.still_flow_scale
             ));
         }
         if !(0.0..=1.0).contains(&self.flow_weights_share) {

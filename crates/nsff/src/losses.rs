@@ -246,17 +246,41 @@ pub fn sparsity(blend_s: Tensor<2>, gate: Tensor<2>, sigma_dy: Tensor<2>, step: 
 /// fixed), averaged over the `[S, 1]` samples (colour over its 3 channels too). The warped
 /// render asks only that the integral along one ray match; this asks it of every sample, so a
 /// static object inside the motion masks keeps one shape across frames instead of one per frame
-/// (each frame's camera sees it from one side only).
+/// (each frame's camera sees it from one side only). With `per_sample` (`[S, 1]`, held fixed)
+/// each sample's two differences are scaled by its weight before the mean (still over all S).
 pub fn field_consistency(
     a: (Tensor<2>, Tensor<2>),
     b: (Tensor<2>, Tensor<2>),
     deltas: Tensor<2>,
+    per_sample: Option<Tensor<2>>,
 ) -> Tensor<1> {
     let alpha = |density: Tensor<2>| (density * deltas.clone()).neg().exp().neg() + 1.0;
     let (alpha_a, alpha_b) = (alpha(a.0), alpha(b.0));
-    let weight = ((alpha_a.clone() + alpha_b.clone()) * 0.5).detach();
+    let mut weight = ((alpha_a.clone() + alpha_b.clone()) * 0.5).detach();
+    let mut opacity = (alpha_a - alpha_b).powi_scalar(2);
+    if let Some(w) = per_sample {
+        let w = w.detach();
+        weight = weight * w.clone();
+        opacity = opacity * w;
+    }
     let colour = ((a.1 - b.1).powi_scalar(2) * weight).mean();
-    (alpha_a - alpha_b).powi_scalar(2).mean() + colour
+    opacity.mean() + colour
+}
+
+/// Per sample, exp(−(m/ε)²) with m the longest of the `[S, 3]` flows in `flows` at that sample
+/// (host values, 3 per sample each): 1 where the scene flow says nothing moves, falling to
+/// e⁻¹ at m = ε. The gate of the still-matter term, which must spare the movers.
+pub fn still_gate(flows: &[&[f32]], eps: f32) -> Vec<f32> {
+    let n = flows.first().map_or(0, |f| f.len() / 3);
+    (0..n)
+        .map(|i| {
+            let m2 = flows
+                .iter()
+                .map(|f| f[3 * i..3 * i + 3].iter().map(|c| c * c).sum::<f32>())
+                .fold(0.0f32, f32::max);
+            (-m2 / (eps * eps)).exp()
+        })
+        .collect()
 }
 
 /// Median (the lower middle value, as torch.median) and mean absolute deviation from it, in
@@ -321,7 +345,12 @@ mod tests {
             da / 4.0 + dc / 12.0
         };
         let loss = |sa: Tensor<2>, ca: Tensor<2>, d: &Device| {
-            field_consistency((sa, ca), (t2(&sig_b, 1, d), t2(&rgb_b, 3, d)), t2(&deltas, 1, d))
+            field_consistency(
+                (sa, ca),
+                (t2(&sig_b, 1, d), t2(&rgb_b, 3, d)),
+                t2(&deltas, 1, d),
+                None,
+            )
         };
         let got = f64::from(loss(t2(&sig_a, 1, &dev), t2(&rgb_a, 3, &dev), &dev).into_scalar::<f32>());
         let want = reference(&sig_a, &rgb_a);
@@ -331,6 +360,7 @@ mod tests {
             (t2(&sig_a, 1, &dev), t2(&rgb_a, 3, &dev)),
             (t2(&sig_a, 1, &dev), t2(&rgb_a, 3, &dev)),
             t2(&deltas, 1, &dev),
+            None,
         );
         assert_eq!(same.into_scalar::<f32>(), 0.0);
         // Gradients against central differences of the reference (weights held fixed), at the
@@ -363,6 +393,47 @@ mod tests {
                 g_rgb[i]
             );
         }
+    }
+
+    /// Per-sample weights scale each sample's opacity and colour differences, against a float64
+    /// recomputation; weights of 1 are the unweighted loss; the gate against its formula.
+    #[test]
+    fn weighted_field_consistency_and_the_still_gate() {
+        let dev = Device::flex();
+        let (sig_a, sig_b) = ([1.0f32, 20.0, 0.0], [3.0f32, 0.0, 7.0]);
+        let rgb_a = [0.1f32, 0.2, 0.3, 0.9, 0.8, 0.7, 0.5, 0.5, 0.5];
+        let rgb_b = [0.3f32, 0.2, 0.0, 0.1, 0.8, 0.2, 0.0, 1.0, 0.5];
+        let (deltas, w) = ([0.05f32, 0.1, 0.02], [1.0f32, 0.5, 0.0]);
+        let alpha = |s: f32, d: f32| 1.0 - (-(s as f64) * d as f64).exp();
+        let mut want = 0.0f64;
+        for i in 0..3 {
+            let (aa, ab) = (alpha(sig_a[i], deltas[i]), alpha(sig_b[i], deltas[i]));
+            want += w[i] as f64 * (aa - ab).powi(2) / 3.0;
+            for c in 0..3 {
+                let dc = (rgb_a[3 * i + c] as f64 - rgb_b[3 * i + c] as f64).powi(2);
+                want += w[i] as f64 * 0.5 * (aa + ab) * dc / 9.0;
+            }
+        }
+        let run = |weights: Option<&[f32]>| {
+            let a = (t2(&sig_a, 1, &dev), t2(&rgb_a, 3, &dev));
+            let b = (t2(&sig_b, 1, &dev), t2(&rgb_b, 3, &dev));
+            let per = weights.map(|v| t2(v, 1, &dev));
+            f64::from(field_consistency(a, b, t2(&deltas, 1, &dev), per).into_scalar::<f32>())
+        };
+        assert!((run(Some(&w)) - want).abs() < 1e-6, "{} vs {want}", run(Some(&w)));
+        assert!((run(Some(&[1.0; 3])) - run(None)).abs() < 1e-7);
+        assert!(run(None) > want + 1e-3, "the weights must matter");
+
+        let still = [0.0f32, 0.0, 0.0, 0.003, 0.0, 0.004];
+        let moving = [0.0f32, 0.0, 0.001, 0.0, 0.0, 0.0];
+        let gate = still_gate(&[&still, &moving], 0.005);
+        assert!((gate[0] - (-(0.001f32 / 0.005).powi(2)).exp()).abs() < 1e-6);
+        assert!(
+            (gate[1] - (-1.0f32).exp()).abs() < 1e-6,
+            "|f| = 0.005 = ε: {}",
+            gate[1]
+        );
+        assert!(still_gate(&[&[0.0; 3]], 1e-3)[0] == 1.0);
     }
 
     /// Against a float64 recomputation: rows of weight 1 count as in the plain mean, the

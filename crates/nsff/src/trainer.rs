@@ -5,7 +5,7 @@
 use std::cell::{Cell, RefCell};
 use std::path::{Path, PathBuf};
 
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Device, Int, Tensor, TensorData};
 use nerf::checkpoint::{Sections, has_checkpoint};
 use nerf::error::{ModelError, Result, read_scalar};
 use nerf::model::scene_bounds;
@@ -690,7 +690,7 @@ impl NsffTrainer {
         // interval in the ray parameter t, for the consistency term against the neighbour's
         // time. The render's interval is a distance, δ·|d|: directions have z = −1, so it is
         // 1 to 1.10 times this at a 40° field of view.
-        let consistency_from = (wts.field_consistency > 0.0).then(|| {
+        let consistency_from = (wts.field_consistency > 0.0 || wts.still_persistence > 0.0).then(|| {
             let deltas = samples
                 .t_end
                 .iter()
@@ -703,6 +703,13 @@ impl NsffTrainer {
                 tensor(deltas, 1, dev),
             )
         });
+        if let (Some(here), true) = (&consistency_from, wts.still_persistence > 0.0) {
+            let flows = (flow_next.clone(), flow_prev.clone());
+            let still = span("nsff_still", || {
+                self.still_persistence(dynamic, &q, flows, here, k, rng)
+            })?;
+            loss = loss + still * wts.still_persistence;
+        }
         // Neighbouring frames: warped renders, disocclusion weights, cycle, flow and consistency
         // terms.
         let (warp_to, warp_weight) = pick_neighbours(
@@ -734,7 +741,7 @@ impl NsffTrainer {
                     dirs,
                     (j, forward),
                     (flow, prob, x_j),
-                    consistency_from.as_ref(),
+                    consistency_from.as_ref().filter(|_| wts.field_consistency > 0.0),
                 )? * warp_weight;
             // Projected scene flow against the 2-D optical flow of this pixel.
             let prior = if forward { &v.flow_fwd[k] } else { &v.flow_bwd[k] };
@@ -825,10 +832,63 @@ impl NsffTrainer {
         if let Some((density, rgb, deltas)) = consistency {
             let there = (dj.extras.expect(GATE) * dj.sigma.clone(), dj.rgb.clone());
             loss = loss
-                + losses::field_consistency((density.clone(), rgb.clone()), there, deltas.clone())
+                + losses::field_consistency((density.clone(), rgb.clone()), there, deltas.clone(), None)
                     * wts.field_consistency;
         }
         Ok(loss)
+    }
+
+    /// `weights.still_persistence`: at a random `still_share` of the samples, the dynamic field
+    /// at (x, t) (`here`: effective density `[S, 1]`, colour `[S, 3]`, march intervals `[S, 1]`)
+    /// against the same x at another random frame's time, weighted per sample by
+    /// [`losses::still_gate`] of the scene flows (`flows`: next and previous, `[S, 3]`) at both.
+    fn still_persistence(
+        &self,
+        dynamic: &DynamicField,
+        q: &crate::render::SpaceTimeQuery,
+        flows: (Tensor<2>, Tensor<2>),
+        here: &(Tensor<2>, Tensor<2>, Tensor<2>),
+        k: usize,
+        rng: &mut StdRng,
+    ) -> Result<Tensor<1>> {
+        let (v, dev) = (&self.video, &self.device);
+        let s_n = q.dirs.len() / 3;
+        let n_f = v.times.len();
+        if n_f < 2 || s_n == 0 {
+            return Ok(Tensor::zeros([1], dev));
+        }
+        let n = ((s_n as f32 * self.cfg.still_share).ceil() as usize).clamp(1, s_n);
+        let mut order: Vec<usize> = (0..s_n).collect();
+        let (picked, _) = order.partial_shuffle(rng, n);
+        let dirs: Vec<f32> = picked
+            .iter()
+            .flat_map(|&i| q.dirs[3 * i..3 * i + 3].to_vec())
+            .collect();
+        let ids: Vec<i64> = picked.iter().map(|&i| i as i64).collect();
+        let ids = Tensor::<1, Int>::from_data(TensorData::new(ids, [n]), dev);
+        let pick = |t: &Tensor<2>| t.clone().select(0, ids.clone());
+        let other = {
+            let j = rng.random_range(0..n_f - 1);
+            if j >= k { j + 1 } else { j }
+        };
+        let there = query_dynamic(dynamic, pick(&q.x), v.times[other], &dirs);
+        let host = |t: Tensor<2>, what| nerf_core::readback::read_back(t.detach().inner(), what);
+        let flows = [
+            host(pick(&flows.0), "scene flow")?,
+            host(pick(&flows.1), "scene flow")?,
+            host(there.extras.expect(FLOW_NEXT), "scene flow")?,
+            host(there.extras.expect(FLOW_PREV), "scene flow")?,
+        ];
+        let eps = self.cfg.still_flow_scale * self.model.bounds.extent();
+        let gate = losses::still_gate(&flows.iter().map(Vec::as_slice).collect::<Vec<_>>(), eps);
+        let (density, rgb, deltas) = here;
+        let b = (there.extras.expect(GATE) * there.sigma.clone(), there.rgb.clone());
+        Ok(losses::field_consistency(
+            (pick(density), pick(rgb)),
+            b,
+            pick(deltas),
+            Some(tensor(gate, 1, dev)),
+        ))
     }
 
     /// Scene-flow priors: small, temporally smooth (f_next + f_prev ≈ 0) and spatially smooth
@@ -1313,18 +1373,37 @@ mod tests {
     /// reaches the dynamic grid and not the static field.
     #[test]
     fn the_consistency_term_reaches_the_dynamic_field_only() {
-        let (dir, mut t) = space_time_trainer("nsff-consistency", |_| {});
+        reaches_the_dynamic_field_only("nsff-consistency", [0.0, 1.0], |cfg, w| {
+            cfg.weights.field_consistency = w
+        });
+    }
+
+    /// So does the still-matter term, which compares it with itself at another time (weights 1
+    /// and 2: the term draws random numbers, so both runs must draw the same ones).
+    #[test]
+    fn the_still_term_reaches_the_dynamic_field_only() {
+        reaches_the_dynamic_field_only("nsff-still", [1.0, 2.0], |cfg, w| {
+            cfg.weights.still_persistence = w;
+            // A gate wide open: a barely trained field's flows are not yet near zero.
+            cfg.still_flow_scale = 10.0;
+        });
+    }
+
+    /// One step's static and dynamic grid gradients with a term at `weights[0]` and at
+    /// `weights[1]` (`set` applies one): the same static gradient, a different dynamic one.
+    fn reaches_the_dynamic_field_only(name: &str, weights: [f64; 2], set: impl Fn(&mut NsffConfig, f64)) {
+        let (dir, mut t) = space_time_trainer(name, |_| {});
         // A new field is nearly the same everywhere and at every time, so the term and its
         // gradient start near zero: train it a little first.
         for _ in 0..40 {
             t.train_step().unwrap();
         }
         let mut grads = |weight: f64| {
-            t.cfg.weights.field_consistency = weight;
+            set(&mut t.cfg, weight);
             static_and_dynamic_grads(&t, 7)
         };
-        let (static_without, dynamic_without) = grads(0.0);
-        let (static_with, dynamic_with) = grads(1.0);
+        let (static_without, dynamic_without) = grads(weights[0]);
+        let (static_with, dynamic_with) = grads(weights[1]);
         let (diff, scale) = (max_abs_diff, max_abs);
         assert!(
             scale(&static_without) > 0.0,
@@ -1332,11 +1411,11 @@ mod tests {
         );
         assert!(
             diff(&static_with, &static_without) <= 1e-6 * scale(&static_without),
-            "the consistency term moved the static grid"
+            "the term moved the static grid"
         );
         assert!(
             diff(&dynamic_with, &dynamic_without) > 1e-4 * scale(&dynamic_without),
-            "the consistency term did not reach the dynamic grid"
+            "the term did not reach the dynamic grid"
         );
         let _ = std::fs::remove_dir_all(&dir);
     }
