@@ -48,8 +48,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     continue;
                 };
                 points.extend(hit.point.map(|c| c as f32));
-                let n = d.iter().map(|c| c * c).sum::<f64>().sqrt();
-                dirs.extend(d.map(|c| (c / n) as f32));
+                dirs.extend(nerf_data::math::normalize(d).map(|c| c as f32));
                 is_moving.push(moving.contains(&hit.object));
             }
             if is_moving.is_empty() {
