@@ -39,21 +39,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         for (k, &view) in frames.iter().enumerate() {
             let time = t.model.times[k];
             let camera = &ds.views[view].camera;
-            let pixels = (0..camera.intrinsics.num_pixels() as u32).step_by(4);
-            let rays = nerf_data::rays::pixel_rays(camera, pixels);
-            let (mut points, mut dirs, mut is_moving) = (Vec::new(), Vec::new(), Vec::new());
-            for r in 0..rays.len() {
-                let (o, d) = (rays.origin(r).map(f64::from), rays.direction(r).map(f64::from));
-                let Some(hit) = scene.intersect(o, d, time as f64) else {
-                    continue;
-                };
-                points.extend(hit.point.map(|c| c as f32));
-                dirs.extend(nerf_data::math::normalize(d).map(|c| c as f32));
-                is_moving.push(moving.contains(&hit.object));
-            }
-            if is_moving.is_empty() {
+            let surfaces = nsff::eval::surface_hits(&scene, camera, time, 4, |_| true);
+            if surfaces.hits.is_empty() {
                 continue;
             }
+            let is_moving: Vec<bool> = surfaces.hits.iter().map(|h| moving.contains(&h.object)).collect();
+            let (points, dirs) = (surfaces.points, surfaces.dirs);
             let x = nerf::renderer::tensor(points, 3, &plain);
             let out = nsff::model::query_dynamic(&dynamic, x, time, &dirs);
             let read = |name| nerf_core::readback::read_back(out.extras.expect(name), "scene flow");

@@ -179,6 +179,42 @@ pub struct SceneFlowError {
     pub points: usize,
 }
 
+/// The true first surfaces that the centre rays of every `stride`-th pixel of `camera` hit at
+/// `time` in a generated scene, keeping those `keep` accepts.
+pub struct SurfaceHits {
+    pub hits: Vec<nerf_synth::RayHit>,
+    /// `[hits.len() * 3]`: the hit points, f32 for the field.
+    pub points: Vec<f32>,
+    /// `[hits.len() * 3]`: unit ray directions.
+    pub dirs: Vec<f32>,
+}
+
+pub fn surface_hits(
+    scene: &nerf_synth::Scene,
+    camera: &nerf_data::Camera,
+    time: f32,
+    stride: usize,
+    keep: impl Fn(&nerf_synth::RayHit) -> bool,
+) -> SurfaceHits {
+    let pixels = (0..camera.intrinsics.num_pixels() as u32).step_by(stride.max(1));
+    let rays = nerf_data::rays::pixel_rays(camera, pixels);
+    let mut out = SurfaceHits {
+        hits: Vec::new(),
+        points: Vec::new(),
+        dirs: Vec::new(),
+    };
+    for r in 0..rays.len() {
+        let (o, d) = (rays.origin(r).map(f64::from), rays.direction(r).map(f64::from));
+        let Some(hit) = scene.intersect(o, d, time as f64).filter(&keep) else {
+            continue;
+        };
+        out.points.extend(hit.point.map(|c| c as f32));
+        out.dirs.extend(normalize(d).map(|c| c as f32));
+        out.hits.push(hit);
+    }
+    out
+}
+
 /// At every `stride`-th pixel of every training frame but the last, whose centre ray hits a
 /// moving object at that frame's time, compares the field's forward scene flow at the true
 /// surface point with the object's displacement to the next frame's time. `None` without a
@@ -207,26 +243,15 @@ pub fn scene_flow_error(
         let (t0, t1) = (times[k], times[k + 1]);
         let camera = &ds.views[frames[k]].camera;
         let next_camera = &ds.views[frames[k + 1]].camera;
-        let pixels = (0..camera.intrinsics.num_pixels() as u32).step_by(stride.max(1));
-        let rays = nerf_data::rays::pixel_rays(camera, pixels);
-        let (mut points, mut truth, mut dirs) = (Vec::new(), Vec::new(), Vec::new());
-        let mut hits = Vec::new();
-        for r in 0..rays.len() {
-            let (o, d) = (rays.origin(r).map(f64::from), rays.direction(r).map(f64::from));
-            let Some(hit) = scene.intersect(o, d, t0 as f64) else {
-                continue;
-            };
-            if !moving.contains(&hit.object) {
-                continue;
-            }
-            points.extend(hit.point.map(|c| c as f32));
-            hits.push(hit.point);
-            truth.push(scene.object_scene_flow(hit.object, hit.point, t0 as f64, t1 as f64));
-            dirs.extend(normalize(d).map(|c| c as f32));
-        }
-        if truth.is_empty() {
+        let SurfaceHits { hits, points, dirs } =
+            surface_hits(scene, camera, t0, stride, |h| moving.contains(&h.object));
+        if hits.is_empty() {
             continue;
         }
+        let truth: Vec<[f64; 3]> = hits
+            .iter()
+            .map(|h| scene.object_scene_flow(h.object, h.point, t0 as f64, t1 as f64))
+            .collect();
         let out = crate::model::query_dynamic(&dynamic, nerf::renderer::tensor(points, 3, &plain), t0, &dirs);
         let pred = read_back(out.extras.expect(FLOW_NEXT), "scene flow")?;
         for (i, g) in truth.iter().enumerate() {
@@ -238,7 +263,7 @@ pub fn scene_flow_error(
             if lp > 0.0 && lg > 0.0 {
                 cosine += dot(p, *g) / (lp * lg);
             }
-            let h = hits[i];
+            let h = hits[i].point;
             let moved = |d: [f64; 3]| next_camera.project(std::array::from_fn(|a| h[a] + d[a]));
             if let (Some(a), Some(b), Some(c)) = (moved(p), moved(*g), moved([0.0; 3])) {
                 pix += (a.0 - b.0).hypot(a.1 - b.1);

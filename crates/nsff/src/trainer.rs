@@ -872,12 +872,13 @@ impl NsffTrainer {
             if j >= k { j + 1 } else { j }
         };
         let there = query_dynamic(dynamic, pick(&q.x), v.times[other], &dirs);
-        let host = |t: Tensor<2>, what| nerf_core::readback::read_back(t.detach().inner(), what);
+        // The gate is a constant weight: detach before selecting, so no graph is built for it.
+        let host = |t: Tensor<2>| nerf_core::readback::read_back(t.inner(), "scene flow");
         let flows = [
-            host(pick(&flows.0), "scene flow")?,
-            host(pick(&flows.1), "scene flow")?,
-            host(there.extras.expect(FLOW_NEXT), "scene flow")?,
-            host(there.extras.expect(FLOW_PREV), "scene flow")?,
+            host(pick(&flows.0.detach()))?,
+            host(pick(&flows.1.detach()))?,
+            host(there.extras.expect(FLOW_NEXT).detach())?,
+            host(there.extras.expect(FLOW_PREV).detach())?,
         ];
         let eps = self.cfg.still_flow_scale * self.model.bounds.extent();
         let gate = losses::still_gate(&flows.iter().map(Vec::as_slice).collect::<Vec<_>>(), eps);
