@@ -872,13 +872,14 @@ impl NsffTrainer {
             if j >= k { j + 1 } else { j }
         };
         let there = query_dynamic(dynamic, pick(&q.x), v.times[other], &dirs);
-        // The gate is a constant weight: detach before selecting, so no graph is built for it.
+        // The gate is a constant weight: detach before selecting, so no graph is built for it
+        // (`inner` alone drops the graph of the tensors read back as they are).
         let host = |t: Tensor<2>| nerf_core::readback::read_back(t.inner(), "scene flow");
         let flows = [
             host(pick(&flows.0.detach()))?,
             host(pick(&flows.1.detach()))?,
-            host(there.extras.expect(FLOW_NEXT).detach())?,
-            host(there.extras.expect(FLOW_PREV).detach())?,
+            host(there.extras.expect(FLOW_NEXT))?,
+            host(there.extras.expect(FLOW_PREV))?,
         ];
         let eps = self.cfg.still_flow_scale * self.model.bounds.extent();
         let gate = losses::still_gate(&flows.iter().map(Vec::as_slice).collect::<Vec<_>>(), eps);
