@@ -29,6 +29,32 @@ pub fn wmse(a: Tensor<2>, b: Tensor<2>, mask: Tensor<2>) -> Tensor<1> {
     err.sum() / (mask.sum() * c + 1e-8)
 }
 
+/// Per-ray weights of a static batch that holds masked rays (`masked`, the rays inside the
+/// motion masks), from each ray's squared colour error (`errors`, held fixed): 1 outside the
+/// masks, 1 / (1 + e / τ) inside, τ = `scale` × the mean error of the unmasked rays (of all
+/// rays when none is unmasked). A masked ray the static field explains as well as the still
+/// ones counts almost fully; one it cannot explain (a mover, different in every frame) counts
+/// little. Non-finite errors weigh 0.
+pub fn robust_ray_weights(errors: &[f32], masked: &[bool], scale: f32) -> Vec<f32> {
+    let mean = |keep: &dyn Fn(usize) -> bool| {
+        let (sum, n) = (0..errors.len())
+            .filter(|&i| keep(i) && errors[i].is_finite())
+            .fold((0.0f64, 0usize), |(s, n), i| (s + errors[i] as f64, n + 1));
+        (n > 0).then(|| sum / n as f64)
+    };
+    let reference = mean(&|i| !masked[i]).or_else(|| mean(&|_| true)).unwrap_or(0.0);
+    let tau = (scale as f64 * reference).max(1e-12);
+    errors
+        .iter()
+        .zip(masked)
+        .map(|(&e, &m)| match (m, e.is_finite()) {
+            (false, _) => 1.0,
+            (true, true) => (1.0 / (1.0 + e.max(0.0) as f64 / tau)) as f32,
+            (true, false) => 0.0,
+        })
+        .collect()
+}
+
 /// Mask-weighted mean absolute error; `mask` is `[N, 1]`.
 pub fn wmae(a: Tensor<2>, b: Tensor<2>, mask: Tensor<2>) -> Tensor<1> {
     let c = a.dims()[1] as f32;
@@ -303,6 +329,27 @@ mod tests {
 
     fn t2(v: &[f32], c: usize, dev: &Device) -> Tensor<2> {
         nerf::renderer::tensor(v.to_vec(), c, dev)
+    }
+
+    /// Unmasked rays weigh 1; masked ones 1 / (1 + e / τ) with τ from the unmasked rays' mean
+    /// error, so a masked ray as good as the still ones keeps most of its weight and one far
+    /// off little; with no unmasked ray τ comes from all rays; NaN weighs 0.
+    #[test]
+    fn robust_ray_weights_spare_the_masked_rays_the_static_field_cannot_explain() {
+        let errors = [0.01f32, 0.03, 0.02, 0.5, f32::NAN];
+        let masked = [false, false, true, true, true];
+        let w = robust_ray_weights(&errors, &masked, 2.0);
+        let tau = 2.0 * (0.01f64 + 0.03) / 2.0;
+        let want = [1.0, 1.0, 1.0 / (1.0 + 0.02 / tau), 1.0 / (1.0 + 0.5 / tau), 0.0];
+        for (g, w) in w.iter().zip(want) {
+            assert!((*g as f64 - w).abs() < 1e-6, "{g} against {w}");
+        }
+        assert!(w[2] > 0.6 && w[3] < 0.1, "{w:?}");
+        let all = robust_ray_weights(&[0.1, 0.3], &[true, true], 1.0);
+        assert!(
+            (all[0] as f64 - 1.0 / 1.5).abs() < 1e-6 && (all[1] as f64 - 0.4).abs() < 1e-6,
+            "{all:?}"
+        );
     }
 
     /// Central difference of `f` in its `i`-th input at `x`, step `h`.

@@ -512,7 +512,8 @@ impl NsffTrainer {
         let Some(dynamic) = &self.model.fields.dynamic else {
             // No independent motion: the static pipeline's photometric loss only.
             let bg = Background::from_option(self.video.dataset.background);
-            let Some((loss, m, s_n)) = self.static_photometric(&batch.rays, batch.target, &bg, rng)? else {
+            let Some((loss, m, s_n)) = self.static_photometric(&batch.rays, batch.target, &bg, None, rng)?
+            else {
                 return Ok(None);
             };
             return Ok(Some((loss, stats(m, batch.rays.len(), s_n), 0)));
@@ -972,13 +973,29 @@ impl NsffTrainer {
         warm_up: bool,
         rng: &mut StdRng,
     ) -> Result<Option<(Tensor<1>, f64, usize, usize)>> {
-        let masked_share = if warm_up { self.warm_up_masked_share() } else { 0.0 };
+        let masked_static = self.cfg.masked_static;
+        let masked_share = if warm_up {
+            self.warm_up_masked_share().max(masked_static)
+        } else {
+            masked_static
+        };
         let pixels = self.still_pixels(self.n_static_rays.max(1), masked_share, rng);
         let (rays, mut target, alpha) = self.pixel_rays(&pixels);
         let background = self.static_background(warm_up, &mut target, &alpha, rng);
         let target = tensor(target, 3, &self.device);
+        // The masked rays in `pixel_rays`' order, for `masked_static`'s robust weights.
+        let masks = &self.video.motion_masks;
+        let masked: Option<Vec<bool>> = (masked_static > 0.0).then(|| {
+            (pixels.iter().enumerate())
+                .flat_map(|(k, ps)| ps.iter().map(move |&p| masks[k][p as usize]))
+                .collect()
+        });
+        let masked = masked.as_deref().map(|rays| MaskedRays {
+            rays,
+            blend: !warm_up && self.has_dynamic(),
+        });
         let still = span("nsff_static_batch", || {
-            self.static_photometric(&rays, target, &background, rng)
+            self.static_photometric(&rays, target, &background, masked, rng)
         })?;
         Ok(still.map(|(loss, m, n)| (loss, m, rays.len(), n)))
     }
@@ -992,9 +1009,10 @@ impl NsffTrainer {
         self.cfg.warm_up_masked * left.clamp(0.0, 1.0) as f32
     }
 
-    /// What the static batch composites over: during the warm-up with `warm_up_random_background`
-    /// and RGBA frames (`alpha` per ray), a random colour per ray that `target` (`[n * 3]`) is
-    /// recomposited over; else the dataset's background.
+    /// What the static batch composites over: with `static_random_background`, or during the
+    /// warm-up with `warm_up_random_background`, and RGBA frames (`alpha` per ray), a random
+    /// colour per ray that `target` (`[n * 3]`) is recomposited over; else the dataset's
+    /// background.
     fn static_background(
         &self,
         warm_up: bool,
@@ -1004,7 +1022,8 @@ impl NsffTrainer {
     ) -> Background {
         match self.video.dataset.background {
             Some(base)
-                if warm_up && self.cfg.warm_up_random_background && 3 * alpha.len() == target.len() =>
+                if (self.cfg.static_random_background || (warm_up && self.cfg.warm_up_random_background))
+                    && 3 * alpha.len() == target.len() =>
             {
                 let bg = nerf::trainer::random_background(target, alpha.iter().copied(), base, rng);
                 Background::PerRay(tensor(bg, 3, &self.device))
@@ -1058,12 +1077,15 @@ impl NsffTrainer {
     }
 
     /// The static field alone on `rays` against `target` (`[R, 3]`): the static pipeline's
-    /// photometric loss, its value, and the sample count. `None` when no ray has samples.
+    /// photometric loss, its value, and the sample count. With `masked` (per ray, inside the
+    /// motion masks) the masked rays weigh [`losses::robust_ray_weights`] (`masked_static`).
+    /// `None` when no ray has samples.
     fn static_photometric(
         &self,
         rays: &Rays,
         target: Tensor<2>,
         background: &Background,
+        masked: Option<MaskedRays>,
         rng: &mut StdRng,
     ) -> Result<Option<(Tensor<1>, f64, usize)>> {
         // Rays of mixed times (the static batch), or a model without time bins: the union.
@@ -1075,9 +1097,35 @@ impl NsffTrainer {
         let x = tensor(samples.positions(rays), 3, &self.device);
         let dirs = samples.per_sample3(&rays.viewdirs());
         let st = self.model.fields.static_field.query(FieldQuery::new(x, &dirs));
+        let blend_weight = self.cfg.weights.masked_blend;
+        let blend = (blend_weight > 0.0 && masked.is_some_and(|m| m.blend)).then(|| {
+            // The blend along each ray under the static render's weights, held fixed.
+            let channel =
+                Component::channels_only(st.sigma.clone().detach()).with(BLEND, st.extras.expect(BLEND));
+            self.render_over(rays, &samples, &[channel], background)
+                .expect(BLEND)
+        });
         let out = self.render_over(rays, &samples, &[Component::new(st.sigma, st.rgb)], background);
-        let loss = losses::mse(out.rgb, target);
-        let m = read_scalar(loss.clone().inner(), "loss")?;
+        let (photo, blend_term) = match masked {
+            Some(m) if m.rays.iter().any(|&m| m) => {
+                let (photo, w) = robust_mse(out.rgb, target, m.rays, self.cfg.masked_static_scale)?;
+                // The masked rays only, each at its robust weight.
+                let n = m.rays.iter().filter(|&&m| m).count() as f32;
+                let blend_term = blend.map(|blend| {
+                    let w: Vec<f32> = (w.iter().zip(m.rays))
+                        .map(|(&w, &m)| if m { w / n } else { 0.0 })
+                        .collect();
+                    (blend * tensor(w, 1, &self.device)).sum() * blend_weight
+                });
+                (photo, blend_term)
+            }
+            _ => (losses::mse(out.rgb, target), None),
+        };
+        let m = read_scalar(photo.clone().inner(), "loss")?;
+        let loss = match blend_term {
+            Some(term) => photo + term,
+            None => photo,
+        };
         Ok(Some((loss, m, s_n)))
     }
 
@@ -1207,6 +1255,30 @@ fn ray_errors(rgb: &Tensor<2>, target: &Tensor<2>) -> Result<Vec<f32>> {
     Ok(nerf_core::readback::read_back(err.inner(), "ray errors")?)
 }
 
+/// The mean squared error of `rgb` against `target` (`[R, 3]`), each ray weighted by
+/// [`losses::robust_ray_weights`] of its error (held fixed) given which rays are `masked`;
+/// and those weights.
+fn robust_mse(
+    rgb: Tensor<2>,
+    target: Tensor<2>,
+    masked: &[bool],
+    scale: f32,
+) -> Result<(Tensor<1>, Vec<f32>)> {
+    let errors = ray_errors(&rgb, &target)?;
+    let w = losses::robust_ray_weights(&errors, masked, scale);
+    let dev = rgb.device();
+    Ok((losses::wmse(rgb, target, tensor(w.clone(), 1, &dev)), w))
+}
+
+/// The static batch's masked rays (`masked_static`): per ray, whether it lies inside its
+/// frame's motion mask, and whether `weights.masked_blend` applies (after the warm-up, with a
+/// dynamic field).
+#[derive(Clone, Copy)]
+struct MaskedRays<'a> {
+    rays: &'a [bool],
+    blend: bool,
+}
+
 fn stats(mse: f64, rays: usize, samples: usize) -> StepStats {
     StepStats {
         loss: mse,
@@ -1311,6 +1383,43 @@ mod tests {
         assert_eq!(better, vec![true, false]);
     }
 
+    /// The masked rays of a static batch weigh 1 / (1 + e / τ), τ = scale × the unmasked rays'
+    /// mean error, in a mean over the weights; against a float64 recomputation.
+    #[test]
+    fn robust_mse_matches_a_float64_recomputation() {
+        let dev = Device::default();
+        let rgb = [0.2f32, 0.4, 0.6, 0.5, 0.5, 0.5, 0.9, 0.1, 0.3, 0.0, 0.7, 0.2];
+        let target = [0.25f32, 0.4, 0.5, 0.5, 0.6, 0.45, 0.1, 0.1, 0.9, 0.05, 0.65, 0.2];
+        let masked = [false, false, true, true];
+        let (got, weights) = robust_mse(
+            tensor(rgb.to_vec(), 3, &dev),
+            tensor(target.to_vec(), 3, &dev),
+            &masked,
+            2.0,
+        )
+        .unwrap();
+        let got = nerf_core::readback::read_back(got.inner(), "loss").unwrap()[0] as f64;
+        let e: Vec<f64> = (0..4)
+            .map(|r| {
+                (0..3)
+                    .map(|c| (rgb[3 * r + c] as f64 - target[3 * r + c] as f64).powi(2))
+                    .sum()
+            })
+            .collect();
+        let tau = 2.0 * (e[0] + e[1]) / 2.0;
+        let w: Vec<f64> = (0..4)
+            .map(|r| if masked[r] { 1.0 / (1.0 + e[r] / tau) } else { 1.0 })
+            .collect();
+        let want = (0..4).map(|r| w[r] * e[r]).sum::<f64>() / (3.0 * w.iter().sum::<f64>());
+        assert!((got - want).abs() < 1e-6 * want.max(1e-3), "{got} against {want}");
+        for (g, w) in weights.iter().zip(&w) {
+            assert!((*g as f64 - w).abs() < 1e-6, "weights {weights:?} against {w:?}");
+        }
+        // Ray 2 is far off (e = 1.0), so the loss is below the unweighted mean.
+        let plain = e.iter().sum::<f64>() / 12.0;
+        assert!(got < 0.5 * plain, "{got} against the unweighted {plain}");
+    }
+
     /// One neighbour of two: drawn at random (both directions come up), weighted 2 so the sum
     /// of the terms keeps its expectation; where only one exists, or both are kept, weight 1.
     #[test]
@@ -1406,18 +1515,58 @@ mod tests {
         };
         let (static_without, dynamic_without) = grads(weights[0]);
         let (static_with, dynamic_with) = grads(weights[1]);
-        let (diff, scale) = (max_abs_diff, max_abs);
         assert!(
-            scale(&static_without) > 0.0,
+            max_abs(&static_without) > 0.0,
             "no gradient reached the static grid"
         );
-        assert!(
-            diff(&static_with, &static_without) <= 1e-6 * scale(&static_without),
-            "the term moved the static grid"
+        unmoved(&static_with, &static_without, "the term moved the static grid");
+        moved(
+            &dynamic_with,
+            &dynamic_without,
+            "the term did not reach the dynamic grid",
         );
-        assert!(
-            diff(&dynamic_with, &dynamic_without) > 1e-4 * scale(&dynamic_without),
-            "the term did not reach the dynamic grid"
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// Gradients `with` a term equal those `without` it, to 1e-6 of their largest.
+    fn unmoved(with: &[f32], without: &[f32], what: &str) {
+        assert!(max_abs_diff(with, without) <= 1e-6 * max_abs(without), "{what}");
+    }
+
+    /// Gradients `with` a term differ from those `without` it by over 1e-4 of their largest.
+    fn moved(with: &[f32], without: &[f32], what: &str) {
+        assert!(max_abs_diff(with, without) > 1e-4 * max_abs(without), "{what}");
+    }
+
+    /// The masked rays' blend term (`weights.masked_blend`) moves the static field's blend
+    /// head (and through it the static grid), never the dynamic field; without masked rays in
+    /// the static batch (`masked_static` 0) it does nothing.
+    #[test]
+    fn the_masked_blend_term_reaches_the_static_field_only() {
+        let (dir, mut t) = space_time_trainer("nsff-masked-blend", |_| {});
+        assert_eq!(t.cfg.masked_static, 0.0, "opt-in");
+        let mut grads = |share: f32, weight: f64| {
+            (t.cfg.masked_static, t.cfg.weights.masked_blend) = (share, weight);
+            static_and_dynamic_grads(&t, 11)
+        };
+        let (static_without, dynamic_without) = grads(1.0, 0.0);
+        let (static_with, dynamic_with) = grads(1.0, 1.0);
+        unmoved(
+            &dynamic_with,
+            &dynamic_without,
+            "the blend term moved the dynamic grid",
+        );
+        moved(
+            &static_with,
+            &static_without,
+            "the blend term did not reach the static grid",
+        );
+        let (static_off, _) = grads(0.0, 0.0);
+        let (static_off_with, _) = grads(0.0, 1.0);
+        unmoved(
+            &static_off_with,
+            &static_off,
+            "with no masked rays the blend term still moved the static grid",
         );
         let _ = std::fs::remove_dir_all(&dir);
     }
@@ -1715,7 +1864,7 @@ mod tests {
         let (dir, mut cfg, video) = temp_video("nsff-warm-rb");
         assert!(!cfg.warm_up_random_background, "opt-in");
         cfg.warm_up_random_background = true;
-        let t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
+        let mut t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
         let mut rng = StdRng::seed_from_u64(4);
         let pixels = t.still_pixels(2000, 1.0, &mut rng);
         let (_, target, alpha) = t.pixel_rays(&pixels);
@@ -1748,6 +1897,15 @@ mod tests {
             empty > 0 && opaque > 0,
             "{empty} background and {opaque} opaque rays"
         );
+        // `static_random_background` keeps the random colours after the warm-up too.
+        t.cfg.static_random_background = true;
+        let mut later = target.clone();
+        let bg = t.static_background(false, &mut later, &alpha, &mut rng);
+        assert!(
+            matches!(bg, Background::PerRay(_)),
+            "no per-ray background after the warm-up"
+        );
+        assert_ne!(later, target, "no background pixel took its ray's colour");
         let _ = std::fs::remove_dir_all(&dir);
     }
 
