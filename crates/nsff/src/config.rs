@@ -84,9 +84,13 @@ pub struct LossWeights {
     pub still_persistence: f64,
     /// With `masked_static`: the blend weight b (the static field's, time-independent) along
     /// the static batch's masked rays, composited with the static render's weights (held
-    /// fixed), each ray weighted by its robust weight. Where the static field alone explains a
-    /// masked pixel, the blend there gives way, so a frame whose dynamic field holds nothing
-    /// at that point (its camera saw a still object edge-on) no longer cuts a hole in it.
+    /// fixed), each ray weighted by max(0, 2w − 1) of its robust weight w, so only the rays
+    /// the static field explains about as well as the still ones (squared error below τ) take
+    /// part and the movers (far off, w ≪ 1/2) are spared: at w itself the many movers' rays
+    /// shut the blend on the movers (fam3 −3.76 dB between frames, BENCHMARKS.md §6,
+    /// thirty-eighth session). Where the static field alone explains a masked pixel, the blend
+    /// there gives way, so a frame whose dynamic field holds nothing at that point (its camera
+    /// saw a still object edge-on) no longer cuts a hole in it.
     #[serde(default)]
     pub masked_blend: f64,
 }
@@ -327,6 +331,12 @@ pub struct NsffConfig {
     /// Checkpoints from before it read false.
     #[serde(default)]
     pub static_random_background: bool,
+    /// With `masked_static`, the static batch's masked rays (only) composite RGBA frames over a
+    /// random colour per ray all run long; the unmasked rays keep the dataset's background.
+    /// Aimed at the white fog of `masked_static` on fam21 at less cost than
+    /// `static_random_background`. Checkpoints from before it read false.
+    #[serde(default)]
+    pub masked_random_background: bool,
     /// Whether the learning rate's decay, like the decaying weights', counts from the end of the
     /// static warm-up (the rate stays at `lr` during it). Without it the dynamic field starts at
     /// the rate of 30 % into the run. Checkpoints from before it read false.
@@ -626,6 +636,7 @@ impl NsffConfig {
             masked_static_scale: default_masked_static_scale(),
             warm_up_random_background: false,
             static_random_background: false,
+            masked_random_background: false,
             lr_decay_after_warm_up: true,
             sparsity_points: VIDEO_SPARSITY_POINTS,
             error_rays: 0.0,

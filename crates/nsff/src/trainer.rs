@@ -981,8 +981,6 @@ impl NsffTrainer {
         };
         let pixels = self.still_pixels(self.n_static_rays.max(1), masked_share, rng);
         let (rays, mut target, alpha) = self.pixel_rays(&pixels);
-        let background = self.static_background(warm_up, &mut target, &alpha, rng);
-        let target = tensor(target, 3, &self.device);
         // The masked rays in `pixel_rays`' order, for `masked_static`'s robust weights.
         let masks = &self.video.motion_masks;
         let masked: Option<Vec<bool>> = (masked_static > 0.0).then(|| {
@@ -990,6 +988,8 @@ impl NsffTrainer {
                 .flat_map(|(k, ps)| ps.iter().map(move |&p| masks[k][p as usize]))
                 .collect()
         });
+        let background = self.static_background(warm_up, &mut target, &alpha, masked.as_deref(), rng);
+        let target = tensor(target, 3, &self.device);
         let masked = masked.as_deref().map(|rays| MaskedRays {
             rays,
             blend: !warm_up && self.has_dynamic(),
@@ -1011,21 +1011,28 @@ impl NsffTrainer {
 
     /// What the static batch composites over: with `static_random_background`, or during the
     /// warm-up with `warm_up_random_background`, and RGBA frames (`alpha` per ray), a random
-    /// colour per ray that `target` (`[n * 3]`) is recomposited over; else the dataset's
+    /// colour per ray that `target` (`[n * 3]`) is recomposited over; with
+    /// `masked_random_background`, such a colour on the `masked` rays only; else the dataset's
     /// background.
     fn static_background(
         &self,
         warm_up: bool,
         target: &mut [f32],
         alpha: &[f32],
+        masked: Option<&[bool]>,
         rng: &mut StdRng,
     ) -> Background {
+        let all = self.cfg.static_random_background || (warm_up && self.cfg.warm_up_random_background);
+        let only = masked.filter(|m| !all && self.cfg.masked_random_background && m.len() == alpha.len());
         match self.video.dataset.background {
-            Some(base)
-                if (self.cfg.static_random_background || (warm_up && self.cfg.warm_up_random_background))
-                    && 3 * alpha.len() == target.len() =>
-            {
-                let bg = nerf::trainer::random_background(target, alpha.iter().copied(), base, rng);
+            Some(base) if (all || only.is_some()) && 3 * alpha.len() == target.len() => {
+                // An unmasked ray counts as opaque here: its target stays as read.
+                let keep = |r: usize| only.is_some_and(|m| !m[r]);
+                let a = (alpha.iter().enumerate()).map(|(r, &a)| if keep(r) { 1.0 } else { a });
+                let mut bg = nerf::trainer::random_background(target, a, base, rng);
+                for (_, c) in bg.chunks_exact_mut(3).enumerate().filter(|(r, _)| keep(*r)) {
+                    c.copy_from_slice(&base);
+                }
                 Background::PerRay(tensor(bg, 3, &self.device))
             }
             base => Background::from_option(base),
@@ -1098,24 +1105,24 @@ impl NsffTrainer {
         let dirs = samples.per_sample3(&rays.viewdirs());
         let st = self.model.fields.static_field.query(FieldQuery::new(x, &dirs));
         let blend_weight = self.cfg.weights.masked_blend;
-        let blend = (blend_weight > 0.0 && masked.is_some_and(|m| m.blend)).then(|| {
-            // The blend along each ray under the static render's weights, held fixed.
-            let channel =
-                Component::channels_only(st.sigma.clone().detach()).with(BLEND, st.extras.expect(BLEND));
-            self.render_over(rays, &samples, &[channel], background)
-                .expect(BLEND)
-        });
+        // Kept for the masked rays' blend term, rendered only once the batch has masked rays.
+        let blend = (blend_weight > 0.0).then(|| (st.sigma.clone().detach(), st.extras.expect(BLEND)));
         let out = self.render_over(rays, &samples, &[Component::new(st.sigma, st.rgb)], background);
         let (photo, blend_term) = match masked {
             Some(m) if m.rays.iter().any(|&m| m) => {
                 let (photo, w) = robust_mse(out.rgb, target, m.rays, self.cfg.masked_static_scale)?;
-                // The masked rays only, each at its robust weight.
+                // The masked rays the static field explains (robust weight above 1/2) only.
                 let n = m.rays.iter().filter(|&&m| m).count() as f32;
-                let blend_term = blend.map(|blend| {
+                let blend_term = blend.filter(|_| m.blend).map(|(sigma, blend)| {
+                    // The blend along each ray under the static render's weights, held fixed.
+                    let channel = Component::channels_only(sigma).with(BLEND, blend);
+                    let b = self
+                        .render_over(rays, &samples, &[channel], background)
+                        .expect(BLEND);
                     let w: Vec<f32> = (w.iter().zip(m.rays))
-                        .map(|(&w, &m)| if m { w / n } else { 0.0 })
+                        .map(|(&w, &m)| if m { (2.0 * w - 1.0).max(0.0) / n } else { 0.0 })
                         .collect();
-                    (blend * tensor(w, 1, &self.device)).sum() * blend_weight
+                    (b * tensor(w, 1, &self.device)).sum() * blend_weight
                 });
                 (photo, blend_term)
             }
@@ -1870,11 +1877,11 @@ mod tests {
         let (_, target, alpha) = t.pixel_rays(&pixels);
         assert_eq!(3 * alpha.len(), target.len(), "the synthetic video has alpha");
         let mut after = target.clone();
-        let bg = t.static_background(false, &mut after, &alpha, &mut rng);
+        let bg = t.static_background(false, &mut after, &alpha, None, &mut rng);
         assert!(matches!(bg, Background::Color(c) if Some(c) == t.video.dataset.background));
         assert_eq!(after, target);
         let mut warm = target.clone();
-        let Background::PerRay(bg) = t.static_background(true, &mut warm, &alpha, &mut rng) else {
+        let Background::PerRay(bg) = t.static_background(true, &mut warm, &alpha, None, &mut rng) else {
             panic!("no per-ray background in the warm-up")
         };
         let bg = nerf_core::readback::read_back(bg.inner(), "test").unwrap();
@@ -1900,12 +1907,60 @@ mod tests {
         // `static_random_background` keeps the random colours after the warm-up too.
         t.cfg.static_random_background = true;
         let mut later = target.clone();
-        let bg = t.static_background(false, &mut later, &alpha, &mut rng);
+        let bg = t.static_background(false, &mut later, &alpha, None, &mut rng);
         assert!(
             matches!(bg, Background::PerRay(_)),
             "no per-ray background after the warm-up"
         );
         assert_ne!(later, target, "no background pixel took its ray's colour");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// With `masked_random_background` only the masked rays composite over a random colour:
+    /// a masked ray's target is a·fg + (1 − a)·c for its own colour c, an unmasked ray keeps
+    /// the image's target and the dataset's background; without masked rays nothing changes.
+    #[test]
+    fn only_the_masked_rays_composite_over_random_backgrounds() {
+        let (dir, cfg, video) = temp_video("nsff-masked-rb");
+        let mut t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
+        assert!(!t.cfg.masked_random_background, "opt-in");
+        t.cfg.masked_random_background = true;
+        let mut rng = StdRng::seed_from_u64(9);
+        let pixels = t.still_pixels(2000, 1.0, &mut rng);
+        let (_, target, alpha) = t.pixel_rays(&pixels);
+        let base = t
+            .video
+            .dataset
+            .background
+            .expect("the synthetic video has a background");
+        // Every other ray counts as masked, so both kinds span all alphas.
+        let masked: Vec<bool> = (0..alpha.len()).map(|r| r % 2 == 0).collect();
+        let mut got = target.clone();
+        let Background::PerRay(bg) = t.static_background(false, &mut got, &alpha, Some(&masked), &mut rng)
+        else {
+            panic!("no per-ray background with masked rays")
+        };
+        let bg = nerf_core::readback::read_back(bg.inner(), "test").unwrap();
+        let mut recoloured = 0;
+        for (r, &a) in alpha.iter().enumerate() {
+            let (a, c) = (a as f64, &bg[3 * r..3 * r + 3]);
+            for k in 0..3 {
+                let (old, new) = (target[3 * r + k] as f64, got[3 * r + k] as f64);
+                if masked[r] {
+                    // The image is fg over the base: new − old = (1 − a)·(c − base).
+                    let want = old + (1.0 - a) * (c[k] as f64 - base[k] as f64);
+                    assert!((new - want).abs() < 1e-5, "masked ray {r} channel {k}");
+                } else {
+                    assert_eq!((new, c[k]), (old, base[k]), "unmasked ray {r} channel {k}");
+                }
+            }
+            recoloured += usize::from(masked[r] && a < 1.0 && c != base.as_slice());
+        }
+        assert!(recoloured > 0, "no masked ray took a random colour");
+        let mut none = target.clone();
+        let plain = t.static_background(false, &mut none, &alpha, None, &mut rng);
+        assert!(matches!(plain, Background::Color(c) if c == base));
+        assert_eq!(none, target);
         let _ = std::fs::remove_dir_all(&dir);
     }
 
