@@ -778,6 +778,15 @@ impl NsffConfig {
                 self.masked_static
             ));
         }
+        // Both act on the static batch's masked rays, which only `masked_static` draws: alone
+        // they would change nothing without saying so.
+        if self.masked_static == 0.0 && (self.masked_random_background || self.weights.masked_blend > 0.0) {
+            return Err(
+                "masked_random_background and weights.masked_blend need masked_static > 0 \
+                        (they act on the static batch's masked rays, which only masked_static draws)"
+                    .to_string(),
+            );
+        }
         if !(self.masked_static_scale.is_finite() && self.masked_static_scale > 0.0) {
             return Err(format!(
                 "masked_static_scale must be a positive number, got {}",
@@ -903,6 +912,25 @@ mod tests {
             let mut cfg = fresh();
             cfg.static_claimed_below = below;
             assert_eq!(cfg.validate().is_ok(), ok, "below {below}");
+        }
+        // The masked rays' settings need masked rays.
+        for (share, random, blend, ok) in [
+            (0.0, true, 0.0, false),
+            (0.0, false, 0.01, false),
+            (1.0, true, 0.01, true),
+            (0.0, false, 0.0, true),
+        ] {
+            let mut cfg = fresh();
+            (
+                cfg.masked_static,
+                cfg.masked_random_background,
+                cfg.weights.masked_blend,
+            ) = (share, random, blend);
+            assert_eq!(
+                cfg.validate().is_ok(),
+                ok,
+                "share {share} random {random} blend {blend}"
+            );
         }
         let mut cfg = fresh();
         cfg.adapt_to_jumping_camera();
