@@ -1030,8 +1030,10 @@ impl NsffTrainer {
                 let keep = |r: usize| only.is_some_and(|m| !m[r]);
                 let a = (alpha.iter().enumerate()).map(|(r, &a)| if keep(r) { 1.0 } else { a });
                 let mut bg = nerf::trainer::random_background(target, a, base, rng);
-                for (_, c) in bg.chunks_exact_mut(3).enumerate().filter(|(r, _)| keep(*r)) {
-                    c.copy_from_slice(&base);
+                for (r, c) in bg.chunks_exact_mut(3).enumerate() {
+                    if keep(r) {
+                        c.copy_from_slice(&base);
+                    }
                 }
                 Background::PerRay(tensor(bg, 3, &self.device))
             }
