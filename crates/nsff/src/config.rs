@@ -93,6 +93,14 @@ pub struct LossWeights {
     /// saw a still object edge-on) no longer cuts a hole in it.
     #[serde(default)]
     pub masked_blend: f64,
+    /// [`crate::losses::blend_hole`] at the sparsity term's random points: where the static
+    /// field is more opaque than the dynamic field at the step's time, the blend b_s·g shuts,
+    /// so the still matter shows. An open blend there cuts a hole in the static scene (fam14's
+    /// plate at the frame that sees it edge-on, BENCHMARKS.md §6, thirty-eighth session). Opt-in
+    /// at 0: on the tuning pilots it trades off-path gains for losses between frames, and it
+    /// keeps fam14's plate only at 0.3, which shuts another video's blend (fortieth session).
+    #[serde(default)]
+    pub blend_hole: f64,
 }
 
 /// The dynamic share `weights.moving_dynamic` asks for on rays inside the motion masks (which
@@ -136,6 +144,7 @@ impl Default for LossWeights {
             field_consistency: 0.0,
             still_persistence: 0.0,
             masked_blend: 0.0,
+            blend_hole: 0.0,
         }
     }
 }

@@ -776,9 +776,11 @@ impl NsffTrainer {
         if wts.entropy > 0.0 {
             loss = loss + losses::entropy(b_s * gate) * wts.entropy;
         }
-        if wts.sparsity > 0.0 {
-            let sparse = span("nsff_sparsity", || self.sparsity(dynamic, v.times[k], rng))?;
-            loss = loss + sparse * wts.sparsity;
+        if wts.sparsity > 0.0 || wts.blend_hole > 0.0 {
+            let sparse = span("nsff_sparsity", || {
+                self.random_point_terms(dynamic, v.times[k], rng)
+            })?;
+            loss = loss + sparse;
         }
         let mut static_samples = 0;
         // The static batch draws from outside the motion masks; a jumping camera has none.
@@ -925,10 +927,10 @@ impl NsffTrainer {
         loss
     }
 
-    /// [`losses::sparsity`] at `sparsity_points` random points at time `time`: drawn from
-    /// occupied cells when there is a grid (the rest of the box is skipped by rendering anyway),
-    /// else uniformly in the box.
-    fn sparsity(&self, dynamic: &DynamicField, time: f32, rng: &mut StdRng) -> Result<Tensor<1>> {
+    /// [`losses::sparsity`] and [`losses::blend_hole`], weighted, at `sparsity_points` random
+    /// points at time `time`: drawn from occupied cells when there is a grid (the rest of the
+    /// box is skipped by rendering anyway), else uniformly in the box.
+    fn random_point_terms(&self, dynamic: &DynamicField, time: f32, rng: &mut StdRng) -> Result<Tensor<1>> {
         let [lo, hi] = self.model.bounds.aabb;
         let mut pos = Vec::with_capacity(3 * self.cfg.sparsity_points);
         for _ in 0..self.cfg.sparsity_points {
@@ -955,12 +957,13 @@ impl NsffTrainer {
             // Stratified samples: their mean spacing.
             None => (self.model.bounds.far - self.model.bounds.near) / self.cfg.samples as f32,
         };
-        Ok(losses::sparsity(
-            st.extras.expect(BLEND),
-            dy.extras.expect(GATE),
-            dy.sigma,
-            step,
-        ))
+        let (b_s, gate, wts) = (st.extras.expect(BLEND), dy.extras.expect(GATE), &self.cfg.weights);
+        let sparse = losses::sparsity(b_s.clone(), gate.clone(), dy.sigma.clone(), step) * wts.sparsity;
+        if wts.blend_hole == 0.0 {
+            return Ok(sparse);
+        }
+        let hole = losses::blend_hole(b_s, gate, st.sigma, dy.sigma, step);
+        Ok(sparse + hole * wts.blend_hole)
     }
 
     /// The static batch: the static pipeline's step on `n_static_rays` pixels outside the motion
