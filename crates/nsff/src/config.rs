@@ -101,6 +101,16 @@ pub struct LossWeights {
     /// keeps fam14's plate only at 0.3, which shuts another video's blend (fortieth session).
     #[serde(default)]
     pub blend_hole: f64,
+    /// [`crate::losses::static_free_space`] on the space-time batch's rays: the static field's
+    /// own optical depth in front of the combined render's visible surface (the space a frame's
+    /// camera sees through at its time). The blend hides such static matter from the renders,
+    /// but not from other times and views: copies of the movers along their paths, and a
+    /// still object too thick for the frame that sees it edge-on. Opt-in at 0 (checkpoints from
+    /// before it read 0): at 0.01 it clears most of the movers' copies but costs 0.1-0.35 dB
+    /// on two tuning videos, and with `masked_static` and `blend_hole` it does not keep fam14's
+    /// plate (BENCHMARKS.md §6, forty-first session).
+    #[serde(default)]
+    pub static_free_space: f64,
 }
 
 /// The dynamic share `weights.moving_dynamic` asks for on rays inside the motion masks (which
@@ -145,6 +155,7 @@ impl Default for LossWeights {
             still_persistence: 0.0,
             masked_blend: 0.0,
             blend_hole: 0.0,
+            static_free_space: 0.0,
         }
     }
 }

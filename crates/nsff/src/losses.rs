@@ -259,6 +259,55 @@ pub fn hidden_weights(sigma_st: &[f32], sigma_dy: &[f32], blend: &[f32], layout:
     out
 }
 
+/// Transmittance below which the combined render's visible surface has begun, for
+/// [`front_weights`].
+pub const SURFACE_BELOW_T: f32 = 0.5;
+
+/// Per sample, its interval δ where it ends at least `margin` (ray parameter) before the
+/// combined render's visible surface, 0 elsewhere. The surface starts at the sample after which
+/// the transmittance through the blended density (1 − b)·σ_st + b·σ_dy falls below
+/// [`SURFACE_BELOW_T`]; a ray that stays clear has none, and all of it is in front. Host values
+/// per sample: `sigma_st`, `sigma_dy`, `blend`, and each sample's `t_start`, `t_end`.
+pub fn front_weights(
+    sigma_st: &[f32],
+    sigma_dy: &[f32],
+    blend: &[f32],
+    layout: &RayLayout,
+    t: (&[f32], &[f32]),
+    margin: f32,
+) -> Vec<f32> {
+    let (t_start, t_end) = t;
+    let mut out = vec![0.0f32; sigma_st.len()];
+    for r in 0..layout.num_rays() {
+        let range = layout.offsets[r] as usize..layout.offsets[r + 1] as usize;
+        let mut optical = 0.0f32;
+        let mut surface = f32::INFINITY;
+        for i in range.clone() {
+            let b = blend[i];
+            optical += ((1.0 - b) * sigma_st[i] + b * sigma_dy[i]).max(0.0) * layout.deltas[i];
+            if (-optical).exp() < SURFACE_BELOW_T {
+                surface = t_start[i];
+                break;
+            }
+        }
+        for i in range {
+            if t_end[i] <= surface - margin {
+                out[i] = layout.deltas[i];
+            }
+        }
+    }
+    out
+}
+
+/// The static field's own optical depth in front of the combined render's visible surface,
+/// Σ_rays Σ_s f_s·σ_st,s / R with f_s of [`front_weights`] (held fixed): the space a frame's
+/// camera sees through at its time holds no still matter, whatever the blend hides there.
+/// Reaches the static density only. `sigma_st` is `[S, 1]`.
+pub fn static_free_space(sigma_st: Tensor<2>, front: Vec<f32>, num_rays: usize) -> Tensor<1> {
+    let dev = sigma_st.device();
+    (sigma_st * tensor(front, 1, &dev)).sum() / num_rays.max(1) as f32
+}
+
 /// Dynamic sparsity: the mean blended dynamic optical depth per march step, mean(b_s·g·σ_dy)·step,
 /// at random points (all `[P, 1]`).
 pub fn sparsity(blend_s: Tensor<2>, gate: Tensor<2>, sigma_dy: Tensor<2>, step: f32) -> Tensor<1> {
@@ -800,5 +849,74 @@ mod tests {
         assert_eq!(got[3], 0.0);
         assert!(got[1] == 0.0 && got[2] > 0.0 && got[2] < 0.3, "{got:?}");
         assert!((got[5] - 0.1).abs() < 1e-6 && (got[6] - 0.1).abs() < 1e-6);
+    }
+
+    /// The space in front of the combined render's surface: on a ray whose static matter the
+    /// blend cuts (a copy the render does not show) and then meets an opaque wall, the samples
+    /// that end a margin before the wall; on a ray that stays clear, all of them. Against a
+    /// float64 walk of the blended transmittance; the term is linear in σ_st with those weights
+    /// over the ray count, and its gradient reaches σ_st alone.
+    #[test]
+    fn free_space_lies_in_front_of_the_blended_surface() {
+        // Ray 0: samples at t = 0.0-0.1, …, 0.5-0.6; a cut static copy at sample 1 (b = 1, the
+        // dynamic field empty there), a faint dynamic wisp at 2, the wall at 4. Ray 1: clear.
+        let sigma_st = [0.0f32, 50.0, 0.0, 0.0, 1e3, 1e3, 0.0, 3.0, 0.0];
+        let sigma_dy = [0.0f32, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.2];
+        let blend = [0.0f32, 1.0, 1.0, 0.0, 0.0, 0.0, 0.5, 1.0, 1.0];
+        let t_start = [0.0f32, 0.1, 0.2, 0.3, 0.4, 0.5, 0.0, 0.2, 0.4];
+        let t_end = [0.1f32, 0.2, 0.3, 0.4, 0.5, 0.6, 0.2, 0.4, 0.6];
+        let layout = nerf_core::composite::RayLayout {
+            offsets: std::sync::Arc::new(vec![0, 6, 9]),
+            deltas: std::sync::Arc::new(vec![0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.2, 0.2, 0.2]),
+        };
+        let margin = 0.15f32;
+        let got = front_weights(&sigma_st, &sigma_dy, &blend, &layout, (&t_start, &t_end), margin);
+        for r in 0..2 {
+            let range = layout.offsets[r] as usize..layout.offsets[r + 1] as usize;
+            let mut optical = 0.0f64;
+            let mut surface = f64::INFINITY;
+            for i in range.clone() {
+                let (b, d) = (blend[i] as f64, layout.deltas[i] as f64);
+                optical += ((1.0 - b) * sigma_st[i] as f64 + b * sigma_dy[i] as f64) * d;
+                if (-optical).exp() < SURFACE_BELOW_T as f64 {
+                    surface = t_start[i] as f64;
+                    break;
+                }
+            }
+            for i in range {
+                let want = if (t_end[i] as f64) <= surface - margin as f64 {
+                    layout.deltas[i] as f64
+                } else {
+                    0.0
+                };
+                assert!(
+                    (got[i] as f64 - want).abs() < 1e-7,
+                    "sample {i}: {} vs {want}",
+                    got[i]
+                );
+            }
+        }
+        // The wall starts at t = 0.4: samples ending by 0.25 are in front, the cut copy among
+        // them; the wall itself and what lies behind it are not. Ray 1 is clear throughout.
+        assert_eq!(&got[..6], &[0.1, 0.1, 0.0, 0.0, 0.0, 0.0]);
+        assert_eq!(&got[6..], &[0.2, 0.2, 0.2]);
+
+        let autodiff = Device::flex().autodiff();
+        let sigma =
+            Tensor::<2>::from_data(TensorData::new(sigma_st.to_vec(), [9, 1]), &autodiff).require_grad();
+        let term = static_free_space(sigma.clone(), got.clone(), 2);
+        let value = f64::from(term.clone().into_scalar::<f32>());
+        let want: f64 = (0..9).map(|i| sigma_st[i] as f64 * got[i] as f64).sum::<f64>() / 2.0;
+        assert!(want > 1.0, "the cut copy must count: {want}");
+        assert!((value - want).abs() < 1e-6 * want, "{value} vs {want}");
+        let grads = term.backward();
+        let g = sigma.grad(&grads).expect("a gradient on σ_st");
+        let g = g.into_data().try_into_vec_as::<f32>().expect("f32");
+        for i in 0..9 {
+            assert!(
+                (g[i] as f64 - got[i] as f64 / 2.0).abs() < 1e-7,
+                "sample {i}: {g:?}"
+            );
+        }
     }
 }

@@ -56,6 +56,10 @@ pub struct NsffTrainer {
     blend_readout: Cell<Option<BlendReadout>>,
 }
 
+/// The gap, in march steps, left between the space `weights.static_free_space` clears and the
+/// combined render's visible surface, so that the surface's own still matter is spared.
+const FRONT_MARGIN_STEPS: f32 = 4.0;
+
 /// How far the blend b = b_s·g opens on a batch's rays inside and outside the motion masks:
 /// the mean over rays of each ray's largest b. A blend that stays shut on the moving rays
 /// means the static field draws the movers and the dynamic field is unused.
@@ -598,6 +602,22 @@ impl NsffTrainer {
                 &combined.layout,
             )?;
             loss = loss + hidden * wts.hidden;
+        }
+
+        if wts.static_free_space > 0.0 {
+            let host = |t: &Tensor<2>, what| nerf_core::readback::read_back(t.clone().detach().inner(), what);
+            let blend = host(&(b_s.clone() * gate.clone()), "blend")?;
+            let margin = FRONT_MARGIN_STEPS * self.model.settings.march.step;
+            let front = losses::front_weights(
+                &host(&st.sigma, "static density")?,
+                &host(&dy.sigma, "dynamic density")?,
+                &blend,
+                &combined.layout,
+                (&samples.t_start, &samples.t_end),
+                margin,
+            );
+            let free = losses::static_free_space(st.sigma.clone(), front, r_n);
+            loss = loss + free * wts.static_free_space;
         }
 
         // Dynamic-only render, also integrating the flowed points (for the part of the
@@ -1579,6 +1599,34 @@ mod tests {
             &static_off_with,
             &static_off,
             "with no masked rays the blend term still moved the static grid",
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// The free-space term (`weights.static_free_space`) moves the static grid and never the
+    /// dynamic one: its weights are read from the combined render and held fixed.
+    #[test]
+    fn the_free_space_term_reaches_the_static_field_only() {
+        let (dir, mut t) = space_time_trainer("nsff-free-space", |_| {});
+        assert_eq!(t.cfg.weights.static_free_space, 0.0, "opt-in");
+        for _ in 0..20 {
+            t.train_step().unwrap();
+        }
+        let mut grads = |weight: f64| {
+            t.cfg.weights.static_free_space = weight;
+            static_and_dynamic_grads(&t, 13)
+        };
+        let (static_without, dynamic_without) = grads(0.0);
+        let (static_with, dynamic_with) = grads(1.0);
+        unmoved(
+            &dynamic_with,
+            &dynamic_without,
+            "the free-space term moved the dynamic grid",
+        );
+        moved(
+            &static_with,
+            &static_without,
+            "the free-space term did not reach the static grid",
         );
         let _ = std::fs::remove_dir_all(&dir);
     }
