@@ -210,36 +210,63 @@ pub fn adjacent_pairs(samples: &RaySamples, frac: f32) -> (Vec<i32>, Vec<i32>) {
 /// few samples over which T falls from 1 to 0; weighting by (1 − T) penalised its back half.
 pub const HIDDEN_BELOW_T: f32 = 0.05;
 
+/// Host copies of a space-time batch's per-sample static density, dynamic density, static
+/// blend weight b_s and blend b = b_s·g: read back once per step for the terms that walk the
+/// combined render's transmittance ([`hidden_dynamic_depth`], [`front_weights`]).
+pub struct BlendedSamples {
+    pub sigma_st: Vec<f32>,
+    pub sigma_dy: Vec<f32>,
+    pub b_s: Vec<f32>,
+    pub blend: Vec<f32>,
+}
+
+impl BlendedSamples {
+    /// Reads the four `[S, 1]` tensors back (no gradient).
+    pub fn read(
+        sigma_st: &Tensor<2>,
+        sigma_dy: &Tensor<2>,
+        b_s: &Tensor<2>,
+        gate: &Tensor<2>,
+    ) -> Result<Self, ModelError> {
+        let host = |t: &Tensor<2>, what| read_back(t.clone().inner(), what);
+        let b_s = host(b_s, "blend weight")?;
+        let blend = b_s
+            .iter()
+            .zip(host(gate, "time gate")?)
+            .map(|(b, g)| b * g)
+            .collect();
+        Ok(BlendedSamples {
+            sigma_st: host(sigma_st, "static density")?,
+            sigma_dy: host(sigma_dy, "dynamic density")?,
+            b_s,
+            blend,
+        })
+    }
+}
+
+/// The combined render's density at one sample: (1 − b)·σ_st + b·σ_dy, never negative.
+fn blended_density(sigma_st: f32, sigma_dy: f32, blend: f32) -> f32 {
+    ((1.0 - blend) * sigma_st + blend * sigma_dy).max(0.0)
+}
+
 /// Hidden dynamic optical depth: Σ_rays Σ_s h_s·b_s·g_s·σ_dy,s / R, with h_s the host weights of
 /// [`hidden_weights`] (no gradient) through the blended density. Dynamic density that this
 /// frame's camera cannot see at this time (behind what the combined render shows) is constrained
 /// by nothing but this term: without it the dynamic field fills the space behind a moving object
 /// with whatever its MLP makes up, and novel views look into it. The penalty reaches the density
 /// and the time gate, not b_s: b_s is time-independent, and points hidden at this time are the
-/// object's visible surface at others. All inputs `[S, 1]`.
+/// object's visible surface at others. `host` holds the same samples' values; the tensors are
+/// `[S, 1]`.
 pub fn hidden_dynamic_depth(
-    sigma_st: &Tensor<2>,
-    blend_s: &Tensor<2>,
+    host: &BlendedSamples,
     sigma_dy: Tensor<2>,
     gate: Tensor<2>,
     layout: &RayLayout,
-) -> Result<Tensor<1>, ModelError> {
-    let host = |t: &Tensor<2>, what| read_back(t.clone().inner(), what);
-    let b_s = host(blend_s, "blend weight")?;
-    let blend: Vec<f32> = b_s
-        .iter()
-        .zip(host(&gate, "time gate")?)
-        .map(|(b, g)| b * g)
-        .collect();
-    let hidden = hidden_weights(
-        &host(sigma_st, "static density")?,
-        &host(&sigma_dy, "dynamic density")?,
-        &blend,
-        layout,
-    );
-    let fixed: Vec<f32> = b_s.iter().zip(hidden).map(|(b, h)| b * h).collect();
+) -> Tensor<1> {
+    let hidden = hidden_weights(&host.sigma_st, &host.sigma_dy, &host.blend, layout);
+    let fixed: Vec<f32> = host.b_s.iter().zip(hidden).map(|(b, h)| b * h).collect();
     let dev = sigma_dy.device();
-    Ok((gate * sigma_dy * tensor(fixed, 1, &dev)).sum() / layout.num_rays() as f32)
+    (gate * sigma_dy * tensor(fixed, 1, &dev)).sum() / layout.num_rays() as f32
 }
 
 /// Per sample, δ·max(0, 1 − T/T_h): its interval where it lies behind the combined render's
@@ -253,7 +280,7 @@ pub fn hidden_weights(sigma_st: &[f32], sigma_dy: &[f32], blend: &[f32], layout:
         for i in layout.offsets[r] as usize..layout.offsets[r + 1] as usize {
             let (b, delta) = (blend[i], layout.deltas[i]);
             out[i] = (1.0 - (-optical).exp() / HIDDEN_BELOW_T).max(0.0) * delta;
-            optical += ((1.0 - b) * sigma_st[i] + b * sigma_dy[i]).max(0.0) * delta;
+            optical += blended_density(sigma_st[i], sigma_dy[i], b) * delta;
         }
     }
     out
@@ -283,8 +310,7 @@ pub fn front_weights(
         let mut optical = 0.0f32;
         let mut surface = f32::INFINITY;
         for i in range.clone() {
-            let b = blend[i];
-            optical += ((1.0 - b) * sigma_st[i] + b * sigma_dy[i]).max(0.0) * layout.deltas[i];
+            optical += blended_density(sigma_st[i], sigma_dy[i], blend[i]) * layout.deltas[i];
             if (-optical).exp() < SURFACE_BELOW_T {
                 surface = t_start[i];
                 break;

@@ -593,25 +593,20 @@ impl NsffTrainer {
             let photo = losses::wmse(rgb, target, tensor(claimed, 1, dev));
             loss = loss + photo * wts.static_claimed;
         }
-        if wts.hidden > 0.0 {
-            let hidden = losses::hidden_dynamic_depth(
-                &st.sigma,
-                &b_s,
-                dy.sigma.clone(),
-                gate.clone(),
-                &combined.layout,
-            )?;
+        // Both terms walk the combined render's transmittance over the same host values.
+        let walked = (wts.hidden > 0.0 || wts.static_free_space > 0.0)
+            .then(|| losses::BlendedSamples::read(&st.sigma, &dy.sigma, &b_s, &gate))
+            .transpose()?;
+        if let Some(host) = walked.as_ref().filter(|_| wts.hidden > 0.0) {
+            let hidden = losses::hidden_dynamic_depth(host, dy.sigma.clone(), gate.clone(), &combined.layout);
             loss = loss + hidden * wts.hidden;
         }
-
-        if wts.static_free_space > 0.0 {
-            let host = |t: &Tensor<2>, what| nerf_core::readback::read_back(t.clone().detach().inner(), what);
-            let blend = host(&(b_s.clone() * gate.clone()), "blend")?;
+        if let Some(host) = walked.as_ref().filter(|_| wts.static_free_space > 0.0) {
             let margin = FRONT_MARGIN_STEPS * self.model.settings.march.step;
             let front = losses::front_weights(
-                &host(&st.sigma, "static density")?,
-                &host(&dy.sigma, "dynamic density")?,
-                &blend,
+                &host.sigma_st,
+                &host.sigma_dy,
+                &host.blend,
                 &combined.layout,
                 (&samples.t_start, &samples.t_end),
                 margin,
