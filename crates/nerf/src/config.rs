@@ -199,6 +199,48 @@ impl TrainConfig {
         }
     }
 
+    /// The optimiser's and the budgets' numbers make sense (after `--lr` and `--set`): a
+    /// learning rate of 0 or below, a beta outside [0, 1) or a NaN would train to nothing
+    /// without saying so.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = [
+            ("lr", self.lr),
+            ("lr_final", self.lr_final),
+            ("adam_eps", self.adam_eps),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{name} must be a positive number, got {v}"));
+            }
+        }
+        for (name, v) in [("adam_beta1", self.adam_beta1), ("adam_beta2", self.adam_beta2)] {
+            if !(0.0..1.0).contains(&v) {
+                return Err(format!("{name} must be in [0, 1), got {v}"));
+            }
+        }
+        let not_negative = [
+            ("weight_decay", self.weight_decay),
+            ("eval_every_secs", self.eval_every_secs),
+        ];
+        for (name, v) in not_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("{name} must be 0 or more, got {v}"));
+            }
+        }
+        if let Some(b) = self.time_budget.filter(|b| !(b.is_finite() && *b > 0.0)) {
+            return Err(format!(
+                "the time budget must be a positive number of seconds, got {b}"
+            ));
+        }
+        if !(self.precrop_frac > 0.0 && self.precrop_frac <= 1.0) {
+            return Err(format!(
+                "precrop_frac must be in (0, 1], got {}",
+                self.precrop_frac
+            ));
+        }
+        Ok(())
+    }
+
     /// Training progress in [0, 1]: the larger of the step and time fractions, so a run cut by
     /// `--time-budget` still ends at `lr_final`.
     pub fn progress(&self, step: usize, elapsed: f64) -> f64 {
@@ -234,4 +276,41 @@ pub fn apply_overrides<C: Serialize + serde::de::DeserializeOwned>(
         *node = serde_json::from_str(raw).unwrap_or_else(|_| serde_json::Value::String(raw.to_string()));
     }
     serde_json::from_value(value).map_err(|e| format!("--set: {e}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The defaults of both presets pass; each nonsensical optimiser or budget number is refused
+    /// with its name.
+    #[test]
+    fn optimiser_and_budget_numbers_must_make_sense() {
+        for preset in [Preset::Fast, Preset::Vanilla] {
+            let cfg = TrainConfig::new(preset, "unused".into(), LoadOptions::default());
+            assert_eq!(cfg.validate(), Ok(()), "{preset:?}");
+        }
+        type Spoil = fn(&mut TrainConfig);
+        let fresh = || TrainConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
+        let cases: [(&str, Spoil); 9] = [
+            ("lr", |c| c.lr = 0.0),
+            ("lr_final", |c| c.lr_final = f64::NAN),
+            ("adam_eps", |c| c.adam_eps = -1e-8),
+            ("adam_beta1", |c| c.adam_beta1 = 1.0),
+            ("adam_beta2", |c| c.adam_beta2 = -0.1),
+            ("weight_decay", |c| c.weight_decay = -1e-6),
+            ("eval_every_secs", |c| c.eval_every_secs = f64::INFINITY),
+            ("time budget", |c| c.time_budget = Some(0.0)),
+            ("precrop_frac", |c| c.precrop_frac = 0.0),
+        ];
+        for (name, spoil) in cases {
+            let mut cfg = fresh();
+            spoil(&mut cfg);
+            let err = cfg.validate().expect_err(name);
+            assert!(err.contains(name), "{name}: {err}");
+        }
+        let mut cfg = fresh();
+        (cfg.time_budget, cfg.adam_beta1, cfg.weight_decay) = (Some(600.0), 0.0, 0.0);
+        assert_eq!(cfg.validate(), Ok(()));
+    }
 }

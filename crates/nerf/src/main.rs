@@ -303,6 +303,7 @@ fn train(args: TrainArgs) -> Result<()> {
         let dataset = load_dataset(&cfg)?;
         cfg.adapt_to(&dataset);
         let cfg = nerf::config::apply_overrides(&cfg, &common.overrides)
+            .and_then(|c| c.validate().map(|()| c))
             .map_err(|m| ModelError::usage(&common.data, m))?;
         Trainer::new(cfg, dataset, &run_dir)?
     };

@@ -113,6 +113,35 @@ pub struct LossWeights {
     pub static_free_space: f64,
 }
 
+impl LossWeights {
+    /// Every weight is a finite number, 0 or more: a negative weight would reward the term's
+    /// error, and a NaN would make every step's loss NaN. Read from the serialised weights, so
+    /// a term added later is checked without touching this.
+    pub fn validate(&self) -> Result<(), String> {
+        let fields = match serde_json::to_value(self) {
+            Ok(serde_json::Value::Object(fields)) => fields,
+            other => return Err(format!("the loss weights did not serialise to a map: {other:?}")),
+        };
+        for (name, value) in fields {
+            // serde_json writes a NaN or an infinity as null.
+            match value.as_f64() {
+                Some(w) if w.is_finite() && w >= 0.0 => {}
+                _ => {
+                    let shown = if value.is_null() {
+                        "NaN or infinite".to_string()
+                    } else {
+                        value.to_string()
+                    };
+                    return Err(format!(
+                        "weights.{name} must be a finite number, 0 or more, got {shown}"
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
 /// The dynamic share `weights.moving_dynamic` asks for on rays inside the motion masks (which
 /// are dilated: they hold static pixels too, so not all of it).
 pub const MOVING_SHARE_FLOOR: f32 = 0.5;
@@ -857,6 +886,8 @@ impl NsffConfig {
                 "warp_neighbours must be at least 1 (0 would drop the scene flow's warp terms)".into(),
             );
         }
+        self.base.validate()?;
+        self.weights.validate()?;
         check_render_step_scale("render_step_scale", self.render_step_scale)
     }
 
@@ -955,6 +986,35 @@ mod tests {
         let mut cfg = fresh();
         cfg.adapt_to_jumping_camera();
         assert!(cfg.validate().is_ok());
+    }
+
+    /// A loss weight that is negative, NaN or infinite is refused with its name; 0 and
+    /// positive weights pass, on the first field and on the last.
+    #[test]
+    fn loss_weights_must_be_finite_and_not_negative() {
+        let fresh = || NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
+        for (w, ok) in [
+            (0.0, true),
+            (0.5, true),
+            (-0.01, false),
+            (f64::NAN, false),
+            (f64::INFINITY, false),
+        ] {
+            let mut cfg = fresh();
+            cfg.weights.dynamic_photo = w;
+            let got = cfg.validate();
+            assert_eq!(got.is_ok(), ok, "dynamic_photo {w}: {got:?}");
+            if !ok {
+                assert!(got.unwrap_err().contains("weights.dynamic_photo"));
+            }
+            let mut cfg = fresh();
+            cfg.weights.static_free_space = w;
+            let got = cfg.validate();
+            assert_eq!(got.is_ok(), ok, "static_free_space {w}: {got:?}");
+            if !ok {
+                assert!(got.unwrap_err().contains("weights.static_free_space"));
+            }
+        }
     }
 
     /// A video's step takes half batches and one warp neighbour, and its blend no entropy term;
