@@ -58,6 +58,17 @@ impl CommonTrainArgs {
         })
     }
 
+    /// Budgets a `--resume` cannot train with, as a message (`--set` is checked against the
+    /// saved settings by [`crate::config::overrides_agree`]).
+    pub fn check_resume(&self) -> Result<(), String> {
+        if let Some(b) = self.time_budget.filter(|b| !(b.is_finite() && *b > 0.0)) {
+            return Err(format!(
+                "the time budget must be a positive number of seconds, got {b}"
+            ));
+        }
+        Ok(())
+    }
+
     /// Budgets given on a `--resume` replace the saved ones.
     pub fn apply_budgets(&self, cfg: &mut TrainConfig) {
         if let Some(s) = self.steps {
@@ -130,4 +141,35 @@ pub struct ViewArgs {
     /// Address to listen on; the default serves this machine only.
     #[arg(long, default_value = "127.0.0.1")]
     pub host: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        common: CommonTrainArgs,
+    }
+
+    fn parse(args: &[&str]) -> CommonTrainArgs {
+        Cli::try_parse_from(std::iter::once("train").chain(args.iter().copied()))
+            .expect("arguments parse")
+            .common
+    }
+
+    /// A resume refuses a time budget that cannot train, and takes new positive budgets.
+    #[test]
+    fn a_resume_refuses_a_budget_that_cannot_train() {
+        assert_eq!(
+            parse(&["data", "--resume", "--time-budget", "60", "--steps", "9"]).check_resume(),
+            Ok(())
+        );
+        let err = parse(&["data", "--resume", "--time-budget=-5"])
+            .check_resume()
+            .unwrap_err();
+        assert!(err.contains("time budget"), "{err}");
+    }
 }

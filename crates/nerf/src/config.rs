@@ -278,9 +278,40 @@ pub fn apply_overrides<C: Serialize + serde::de::DeserializeOwned>(
     serde_json::from_value(value).map_err(|e| format!("--set: {e}"))
 }
 
+/// Whether `overrides` leave a resumed run's saved `cfg` as it is: re-running the command that
+/// started a run with `--resume` appended is fine, but a `--set` that would change a setting is
+/// refused (naming it), since a resumed run keeps the settings it was started with.
+pub fn overrides_agree<C: Serialize + serde::de::DeserializeOwned + PartialEq>(
+    cfg: &C,
+    overrides: &[String],
+) -> Result<(), String> {
+    for item in overrides {
+        if apply_overrides(cfg, std::slice::from_ref(item))? != *cfg {
+            return Err(format!(
+                "--set {item}: a resumed run keeps the settings it was started with; drop this \
+                 --set, or start a new run (another --out) with it"
+            ));
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `--set` on a resume: the saved value passes, a new value or an unknown key is refused.
+    #[test]
+    fn a_resume_takes_only_the_overrides_it_already_has() {
+        let mut cfg = TrainConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
+        cfg.fast.grid.log2_table = 15;
+        let same = ["fast.grid.log2_table=15".to_string(), "seed=0".to_string()];
+        assert_eq!(overrides_agree(&cfg, &same), Ok(()));
+        let err = overrides_agree(&cfg, &["fast.grid.log2_table=17".to_string()]).unwrap_err();
+        assert!(err.contains("--set fast.grid.log2_table=17"), "{err}");
+        let err = overrides_agree(&cfg, &["no_such_key=1".to_string()]).unwrap_err();
+        assert!(err.contains("no_such_key"), "{err}");
+    }
 
     /// The defaults of both presets pass; each nonsensical optimiser or budget number is refused
     /// with its name.

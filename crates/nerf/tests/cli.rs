@@ -211,6 +211,19 @@ fn damaged_checkpoint_is_refused_and_resume_falls_back() {
     );
     let metrics = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap();
     assert!(metrics.contains("\"step\":80"), "training went on to step 80");
+    // A `--set` the run was not started with is refused on a resume, naming it; one that
+    // repeats a saved value is taken.
+    let out = train("90")
+        .args(["--resume", "--set", "lr=0.5"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "a changed setting was resumed: {stderr}");
+    assert!(
+        stderr.contains("--set lr=0.5") && stderr.contains("resumed run"),
+        "{stderr}"
+    );
+    run(train("90").args(["--resume", "--set", "fast.grid.log2_table=17"]));
     run(nerf().arg("eval").arg(&run_dir));
     std::fs::remove_dir_all(dir).unwrap();
 }
