@@ -1000,19 +1000,16 @@ mod tests {
             (f64::NAN, false),
             (f64::INFINITY, false),
         ] {
-            let mut cfg = fresh();
-            cfg.weights.dynamic_photo = w;
-            let got = cfg.validate();
-            assert_eq!(got.is_ok(), ok, "dynamic_photo {w}: {got:?}");
-            if !ok {
-                assert!(got.unwrap_err().contains("weights.dynamic_photo"));
-            }
-            let mut cfg = fresh();
-            cfg.weights.static_free_space = w;
-            let got = cfg.validate();
-            assert_eq!(got.is_ok(), ok, "static_free_space {w}: {got:?}");
-            if !ok {
-                assert!(got.unwrap_err().contains("weights.static_free_space"));
+            let first: fn(&mut LossWeights) -> &mut f64 = |l| &mut l.dynamic_photo;
+            let last: fn(&mut LossWeights) -> &mut f64 = |l| &mut l.static_free_space;
+            for (name, field) in [("dynamic_photo", first), ("static_free_space", last)] {
+                let mut cfg = fresh();
+                *field(&mut cfg.weights) = w;
+                let got = cfg.validate();
+                assert_eq!(got.is_ok(), ok, "{name} {w}: {got:?}");
+                if let Err(e) = got {
+                    assert!(e.contains(&format!("weights.{name}")), "{e}");
+                }
             }
         }
     }
