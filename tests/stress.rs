@@ -134,7 +134,7 @@ fn training_at_ten_times_the_learning_rate_never_goes_non_finite() {
         t.train(false).unwrap();
         // Non-finite steps are skipped, never applied: training reaches its step count, and the
         // final checkpoint loads and renders finite images.
-        let resumed = Trainer::resume(&run, |_| {}).unwrap();
+        let resumed = Trainer::resume(&run, |_| Ok(())).unwrap();
         assert_eq!(resumed.step, resumed.cfg.steps, "{preset:?}");
         let e = nerf::eval::evaluate(
             &resumed.model,

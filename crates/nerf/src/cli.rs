@@ -58,19 +58,22 @@ impl CommonTrainArgs {
         })
     }
 
-    /// Budgets a `--resume` cannot train with, as a message (`--set` is checked against the
-    /// saved settings by [`crate::config::overrides_agree`]).
-    pub fn check_resume(&self) -> Result<(), String> {
-        if let Some(b) = self.time_budget.filter(|b| !(b.is_finite() && *b > 0.0)) {
-            return Err(format!(
-                "the time budget must be a positive number of seconds, got {b}"
-            ));
-        }
-        Ok(())
+    /// A resumed run's saved settings `cfg` (its training settings at `base`) updated by this
+    /// command line: budgets given here replace the saved ones and must be able to train, and a
+    /// `--set` may only repeat a saved value ([`crate::config::overrides_agree`]).
+    pub fn update_resumed<C: serde::Serialize + serde::de::DeserializeOwned + PartialEq>(
+        &self,
+        cfg: &mut C,
+        base: fn(&mut C) -> &mut TrainConfig,
+    ) -> Result<(), String> {
+        let train = base(cfg);
+        self.apply_budgets(train);
+        train.validate()?;
+        crate::config::overrides_agree(cfg, &self.overrides)
     }
 
     /// Budgets given on a `--resume` replace the saved ones.
-    pub fn apply_budgets(&self, cfg: &mut TrainConfig) {
+    fn apply_budgets(&self, cfg: &mut TrainConfig) {
         if let Some(s) = self.steps {
             cfg.steps = s;
         }
@@ -141,35 +144,4 @@ pub struct ViewArgs {
     /// Address to listen on; the default serves this machine only.
     #[arg(long, default_value = "127.0.0.1")]
     pub host: String,
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use clap::Parser;
-
-    #[derive(Parser)]
-    struct Cli {
-        #[command(flatten)]
-        common: CommonTrainArgs,
-    }
-
-    fn parse(args: &[&str]) -> CommonTrainArgs {
-        Cli::try_parse_from(std::iter::once("train").chain(args.iter().copied()))
-            .expect("arguments parse")
-            .common
-    }
-
-    /// A resume refuses a time budget that cannot train, and takes new positive budgets.
-    #[test]
-    fn a_resume_refuses_a_budget_that_cannot_train() {
-        assert_eq!(
-            parse(&["data", "--resume", "--time-budget", "60", "--steps", "9"]).check_resume(),
-            Ok(())
-        );
-        let err = parse(&["data", "--resume", "--time-budget=-5"])
-            .check_resume()
-            .unwrap_err();
-        assert!(err.contains("time budget"), "{err}");
-    }
 }

@@ -266,23 +266,13 @@ fn train(args: TrainArgs) -> Result<()> {
     let common = &args.common;
     let run_dir = common.run_dir("");
     let mut trainer = if common.resume {
-        common
-            .check_resume()
-            .map_err(|m| ModelError::usage(&run_dir, m))?;
         if !has_checkpoint(&run_dir) {
             return Err(ModelError::usage(
                 &run_dir,
                 "--resume: no checkpoint.bin in the run folder",
             ));
         }
-        let mut disagreement = None;
-        let t = Trainer::resume(&run_dir, |cfg| {
-            common.apply_budgets(cfg);
-            disagreement = nerf::config::overrides_agree(cfg, &common.overrides).err();
-        })?;
-        if let Some(m) = disagreement {
-            return Err(ModelError::usage(&run_dir, m));
-        }
+        let t = Trainer::resume(&run_dir, |cfg| common.update_resumed(cfg, |c| c))?;
         eprintln!(
             "resuming {} at step {} ({:.0} s trained)",
             run_dir.display(),

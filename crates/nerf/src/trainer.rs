@@ -60,8 +60,12 @@ impl Trainer<BaseField> {
         Trainer::with_field(cfg, dataset, run_dir, preset_field)
     }
 
-    /// Resumes from `run_dir/checkpoint.bin`. `update` may change budgets (steps, time).
-    pub fn resume(run_dir: &Path, update: impl FnOnce(&mut TrainConfig)) -> Result<Self> {
+    /// Resumes from `run_dir/checkpoint.bin`. `update` may change budgets (steps, time), or
+    /// refuse the saved settings with a message (a usage error naming `run_dir`).
+    pub fn resume(
+        run_dir: &Path,
+        update: impl FnOnce(&mut TrainConfig) -> std::result::Result<(), String>,
+    ) -> Result<Self> {
         Trainer::resume_with_field(run_dir, update, preset_field)
     }
 }
@@ -108,13 +112,14 @@ impl<F: FieldModule> Trainer<F> {
     /// Resumes a run whose fields `build` makes.
     pub fn resume_with_field(
         run_dir: &Path,
-        update: impl FnOnce(&mut TrainConfig),
+        update: impl FnOnce(&mut TrainConfig) -> std::result::Result<(), String>,
         build: FieldBuilder<F>,
     ) -> Result<Self> {
         let (sections, path) = Sections::read_for_resume(run_dir)?;
         let state: TrainState = sections.json("state", &path)?;
         let mut cfg = state.config.clone();
-        update(&mut cfg);
+        // Refused before the dataset is loaded.
+        update(&mut cfg).map_err(|m| ModelError::usage(run_dir, m))?;
         let dataset = load_dataset(&cfg)?;
         let mut t = Trainer::with_field(cfg, dataset, run_dir, build)?;
         t.restore(&sections, &path)?;

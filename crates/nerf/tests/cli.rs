@@ -224,6 +224,14 @@ fn damaged_checkpoint_is_refused_and_resume_falls_back() {
         "{stderr}"
     );
     run(train("90").args(["--resume", "--set", "fast.grid.log2_table=17"]));
+    // A resumed budget must be able to train.
+    let out = train("90")
+        .args(["--resume", "--time-budget=-5"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "a negative budget was resumed: {stderr}");
+    assert!(stderr.contains("time budget"), "{stderr}");
     run(nerf().arg("eval").arg(&run_dir));
     std::fs::remove_dir_all(dir).unwrap();
 }

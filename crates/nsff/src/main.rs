@@ -232,24 +232,14 @@ fn train(args: TrainArgs) -> Result<()> {
     let common = &args.common;
     let run_dir = common.run_dir("nsff-");
     let mut t = if common.resume {
-        common
-            .check_resume()
-            .map_err(|m| ModelError::usage(&run_dir, m))?;
         if !has_checkpoint(&run_dir) {
             return Err(ModelError::usage(
                 &run_dir,
                 "--resume: no checkpoint.bin in the run folder",
             ));
         }
-        let mut disagreement = None;
-        let resume = |cfg: &mut NsffConfig| {
-            common.apply_budgets(&mut cfg.base);
-            disagreement = nerf::config::overrides_agree(cfg, &common.overrides).err();
-        };
-        let t = NsffTrainer::resume(&run_dir, resume, false)?;
-        if let Some(m) = disagreement {
-            return Err(ModelError::usage(&run_dir, m));
-        }
+        let update = |cfg: &mut NsffConfig| common.update_resumed(cfg, |c| &mut c.base);
+        let t = NsffTrainer::resume(&run_dir, update, false)?;
         eprintln!(
             "resuming {} at step {} ({:.0} s trained)",
             run_dir.display(),

@@ -196,12 +196,18 @@ impl NsffTrainer {
         self.model.has_dynamic()
     }
 
-    /// Resumes from `run_dir/checkpoint.bin`; `update` may change budgets.
-    pub fn resume(run_dir: &Path, update: impl FnOnce(&mut NsffConfig), quiet: bool) -> Result<Self> {
+    /// Resumes from `run_dir/checkpoint.bin`; `update` may change budgets, or refuse the saved
+    /// settings with a message (a usage error naming `run_dir`, before the video is loaded).
+    pub fn resume(
+        run_dir: &Path,
+        update: impl FnOnce(&mut NsffConfig) -> std::result::Result<(), String>,
+        quiet: bool,
+    ) -> Result<Self> {
         let (s, path) = Sections::read_for_resume(run_dir)?;
         let state: NsffState = s.json("state", &path)?;
         let mut cfg = state.config.clone();
-        update(&mut cfg);
+        // Refused before the video is loaded and its optical flow read or computed.
+        update(&mut cfg).map_err(|m| ModelError::usage(run_dir, m))?;
         let video = load_video(&cfg, run_dir, quiet)?;
         cfg.dynamic = if state.dynamic {
             DynamicMode::On
