@@ -455,6 +455,21 @@ pub struct NsffConfig {
     /// dynamic-field query of every sample and its backward pass.
     #[serde(default = "default_warp_neighbours")]
     pub warp_neighbours: usize,
+    /// Frames away a video's warped render may reach, the flowed points carried on by the scene
+    /// flow at each frame in between: each warp draws its distance uniformly from 1 to this
+    /// (as far as the video goes in its direction). 1 warps to the neighbour only (NSFF's
+    /// 3-frame consistency); 2 adds NSFF's chained 5-frame one. A frame's dynamic field then
+    /// answers to cameras further along the path, for the price of a flow-grid query per hop.
+    /// The cycle and optical-flow terms stay on the first hop. Checkpoints from before it read 1.
+    #[serde(default = "default_warp_hops")]
+    pub warp_hops: usize,
+    /// With `warp_hops` > 1: 0 draws each warp's distance from 1 to `warp_hops` (one warped
+    /// render a step); above 0 every warp goes to the neighbour as with `warp_hops` = 1, and a
+    /// second warped render, its distance drawn from 2 to `warp_hops`, adds its photometric term
+    /// at this weight (NSFF's 5-frame term beside the 3-frame ones; another dynamic-field query
+    /// of every sample). Checkpoints from before it read 0.
+    #[serde(default)]
+    pub warp_chain_weight: f64,
     /// Scene flow from its own small space-time grid (this many levels; fast preset) and MLP
     /// instead of the dynamic field's shared head, so the flow terms do not pull the features
     /// that density and colour are made of. 0: the shared head (the vanilla preset's, a jumping
@@ -581,6 +596,10 @@ fn default_warp_neighbours() -> usize {
     2
 }
 
+fn default_warp_hops() -> usize {
+    1
+}
+
 fn default_static_claimed_below() -> f32 {
     1.0
 }
@@ -700,6 +719,8 @@ impl NsffConfig {
             occupancy_time_bins: default_occupancy_time_bins(),
             frames_per_batch: default_frames_per_batch(),
             warp_neighbours: VIDEO_WARP_NEIGHBOURS,
+            warp_hops: default_warp_hops(),
+            warp_chain_weight: 0.0,
             flow_levels: 0,
             flow_log2_table: default_flow_log2_table(),
             flow_finest: default_flow_finest(),
@@ -885,6 +906,15 @@ impl NsffConfig {
             return Err(
                 "warp_neighbours must be at least 1 (0 would drop the scene flow's warp terms)".into(),
             );
+        }
+        if self.warp_hops == 0 {
+            return Err("warp_hops must be at least 1 (the neighbour itself)".into());
+        }
+        if !(self.warp_chain_weight.is_finite() && self.warp_chain_weight >= 0.0) {
+            return Err(format!(
+                "warp_chain_weight must be a finite number, 0 or more, got {}",
+                self.warp_chain_weight
+            ));
         }
         self.base.validate()?;
         self.weights.validate()?;
@@ -1077,6 +1107,14 @@ mod tests {
         cfg.warp_neighbours = 0;
         assert!(cfg.validate().unwrap_err().contains("warp_neighbours"));
         cfg.warp_neighbours = 1;
+        cfg.warp_hops = 0;
+        assert!(cfg.validate().unwrap_err().contains("warp_hops"));
+        cfg.warp_hops = 1;
+        for bad in [-1.0, f64::NAN, f64::INFINITY] {
+            cfg.warp_chain_weight = bad;
+            assert!(cfg.validate().unwrap_err().contains("warp_chain_weight"), "{bad}");
+        }
+        cfg.warp_chain_weight = 0.5;
         assert!(cfg.validate().is_ok());
     }
 

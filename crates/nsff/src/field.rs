@@ -178,14 +178,35 @@ impl DynamicField {
 
     /// The named extras from the raw head `[S, 9]` and, with its own network, the raw flow
     /// `[S, 6]`.
+    /// The scene flow alone at `[N, 3]` positions and their times `[N, 1]`: (to the previous
+    /// frame, to the next), each `[N, 3]`, as a full query's [`FLOW_PREV`] and [`FLOW_NEXT`].
+    /// From the flow grid when there is one (a fraction of a full query's cost), else from a
+    /// full query's shared head (`dirs`: `N·3` unit directions for it).
+    pub fn scene_flow(&self, positions: Tensor<2>, time: Tensor<2>, dirs: &[f32]) -> (Tensor<2>, Tensor<2>) {
+        match &self.flow {
+            Some(f) => self.split_flow(f.forward(positions, time)),
+            None => {
+                let out = self.query(FieldQuery::new(positions, dirs).at_time(Some(time)));
+                (out.extras.expect(FLOW_PREV), out.extras.expect(FLOW_NEXT))
+            }
+        }
+    }
+
+    /// Raw flow outputs `[N, 6]` to (previous, next) flows, bounded by `flow_scale`.
+    fn split_flow(&self, raw: Tensor<2>) -> (Tensor<2>, Tensor<2>) {
+        let n = raw.dims()[0];
+        let flow = raw.tanh() * self.flow_scale;
+        (flow.clone().slice([0..n, 0..3]), flow.slice([0..n, 3..6]))
+    }
+
     fn extras(&self, raw: Extras, own_flow: Option<Tensor<2>>) -> Extras {
         let raw = raw.expect(RAW_EXTRA);
         let n = raw.dims()[0];
-        let flow = own_flow.unwrap_or_else(|| raw.clone().slice([0..n, 0..6])).tanh() * self.flow_scale;
+        let (prev, next) = self.split_flow(own_flow.unwrap_or_else(|| raw.clone().slice([0..n, 0..6])));
         let prob = sigmoid(raw.clone().slice([0..n, 6..8]));
         let mut extras = Extras::default();
-        extras.push(FLOW_PREV, flow.clone().slice([0..n, 0..3]));
-        extras.push(FLOW_NEXT, flow.slice([0..n, 3..6]));
+        extras.push(FLOW_PREV, prev);
+        extras.push(FLOW_NEXT, next);
         extras.push(PROB_PREV, prob.clone().slice([0..n, 0..1]));
         extras.push(PROB_NEXT, prob.slice([0..n, 1..2]));
         extras.push(GATE, sigmoid(raw.slice([0..n, DYNAMIC_EXTRA - 1..DYNAMIC_EXTRA])));
@@ -242,4 +263,49 @@ fn open_gate(head: &mut burn::nn::Linear, device: &Device) {
 /// A `[S, 1]` column holding one time for every sample.
 pub fn time_column(t: f32, n: usize, device: &Device) -> Tensor<2> {
     Tensor::full([n, 1], t, device)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nerf::config::Preset;
+    use nerf_core::readback::read_back;
+
+    /// The flow-only query (a chained warp's hops) gives what a full query's flow outputs give
+    /// at the same points and times, with the flow grid and with the shared head.
+    #[test]
+    fn the_flow_only_query_matches_the_full_query() {
+        let device = Device::flex();
+        let aabb = [[-1.0; 3], [1.0; 3]];
+        let n = 64;
+        let pos: Vec<f32> = (0..3 * n).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
+        let t: Vec<f32> = (0..n).map(|i| (i % 7) as f32 / 6.0).collect();
+        let dirs: Vec<f32> = (0..n).flat_map(|_| [0.0, 0.6, -0.8]).collect();
+        for flow_levels in [4, 0] {
+            let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
+            cfg.dynamic_grid.time_resolution = Some(6);
+            cfg.flow_levels = flow_levels;
+            let field = DynamicField::new(&cfg, aabb, &device);
+            assert_eq!(field.flow.is_some(), flow_levels > 0);
+            let x = Tensor::<2>::from_data(burn::tensor::TensorData::new(pos.clone(), [n, 3]), &device);
+            let tt = Tensor::<2>::from_data(burn::tensor::TensorData::new(t.clone(), [n, 1]), &device);
+            let full = field.query(FieldQuery::new(x.clone(), &dirs).at_time(Some(tt.clone())));
+            let (prev, next) = field.scene_flow(x, tt, &dirs);
+            for (alone, name) in [(prev, FLOW_PREV), (next, FLOW_NEXT)] {
+                let a = read_back(alone, name).unwrap();
+                let b = read_back(full.extras.expect(name), name).unwrap();
+                assert_eq!(a.len(), 3 * n);
+                assert!(
+                    b.iter().any(|v| v.abs() > 1e-6),
+                    "{name}: an all-zero flow tests nothing"
+                );
+                for (u, w) in a.iter().zip(&b) {
+                    assert!(
+                        (u - w).abs() <= 1e-6,
+                        "{name}, flow_levels {flow_levels}: {u} vs {w}"
+                    );
+                }
+            }
+        }
+    }
 }

@@ -740,6 +740,16 @@ impl NsffTrainer {
             rng,
         );
         for (j, forward) in warp_to {
+            let chain_weight = self.cfg.warp_chain_weight;
+            let (hops, chained) = if chain_weight > 0.0 {
+                let far = warp_hops(k, v.frames.len(), forward, (2, self.cfg.warp_hops), rng);
+                (1, (far > 1).then_some(far))
+            } else {
+                (
+                    warp_hops(k, v.frames.len(), forward, (1, self.cfg.warp_hops), rng),
+                    None,
+                )
+            };
             let (flow, prob, x_j, flowed) = if forward {
                 (
                     flow_next.clone(),
@@ -761,10 +771,24 @@ impl NsffTrainer {
                     &batch,
                     &samples,
                     dirs,
-                    (j, forward),
-                    (flow, prob, x_j),
+                    (j, forward, hops),
+                    (flow.clone(), prob.clone(), x_j.clone()),
                     consistency_from.as_ref().filter(|_| wts.field_consistency > 0.0),
+                    true,
                 )? * warp_weight;
+            if let Some(far) = chained {
+                let photometric = self.warp_terms(
+                    dynamic,
+                    &batch,
+                    &samples,
+                    dirs,
+                    (j, forward, far),
+                    (flow, prob, x_j),
+                    None,
+                    false,
+                )?;
+                loss = loss + photometric * (chain_weight * f64::from(warp_weight));
+            }
             // Projected scene flow against the 2-D optical flow of this pixel.
             let prior = if forward { &v.flow_fwd[k] } else { &v.flow_bwd[k] };
             if let (Some(of), true) = (prior, wts.optical_flow > 0.0) {
@@ -817,12 +841,14 @@ impl NsffTrainer {
         Ok(Some((loss, stats(m, r_n, s_n), static_samples)))
     }
 
-    /// The terms towards neighbouring frame `j`: the photometric loss of the warped render (the
-    /// dynamic field at frame j's time at the flowed points), weighted by visibility
-    /// Ŵ = Σ sg(w_j)·(1 − p) (gradients reach p only), the cycle term and the disocclusion
+    /// The terms towards neighbouring frame `j` (the next frame when `forward`), reached in
+    /// `hops` frames: the photometric loss of the warped render (the dynamic field at the time
+    /// `hops` frames on, at the points flowed there), weighted by visibility Ŵ = Σ sg(w)·(1 − p)
+    /// with p towards `j` (gradients reach p only), the cycle term at `j` and the disocclusion
     /// regulariser; with `consistency` (this frame's effective dynamic density `[S, 1]`, colour
-    /// `[S, 3]` and march intervals `[S, 1]`) also [`losses::field_consistency`] against frame
-    /// j's at the flowed points.
+    /// `[S, 3]` and march intervals `[S, 1]`) also [`losses::field_consistency`] against the
+    /// warped frame's at the flowed points. `x_j`: the samples flowed to `j`. Without
+    /// `flow_terms`, the warped photometric term alone (a chained warp beside the neighbour's).
     #[allow(clippy::too_many_arguments)]
     fn warp_terms(
         &self,
@@ -830,12 +856,22 @@ impl NsffTrainer {
         batch: &FrameBatch,
         samples: &RaySamples,
         dirs: &[f32],
-        (j, forward): (usize, bool),
+        (j, forward, hops): (usize, bool, usize),
         (flow, prob, x_j): (Tensor<2>, Tensor<2>, Tensor<2>),
         consistency: Option<&(Tensor<2>, Tensor<2>, Tensor<2>)>,
+        flow_terms: bool,
     ) -> Result<Tensor<1>> {
         let wts = &self.cfg.weights;
-        let dj = query_dynamic(dynamic, x_j, self.video.times[j], dirs);
+        let times = &self.video.times;
+        let far = if forward { j + hops - 1 } else { j + 1 - hops };
+        let n = dirs.len() / 3;
+        let (x_far, back_at_j) = chain_flow(x_j, hops, |x, h| {
+            let frame = if forward { j + h - 1 } else { j + 1 - h };
+            let t = crate::field::time_column(times[frame], n, &self.device);
+            let (prev, next) = dynamic.scene_flow(x, t, dirs);
+            if forward { (next, prev) } else { (prev, next) }
+        });
+        let dj = query_dynamic(dynamic, x_far, times[far], dirs);
         let warped = self.render(
             &batch.rays,
             samples,
@@ -849,10 +885,12 @@ impl NsffTrainer {
                     .with(VISIBLE, prob.clone().neg() + 1.0)],
             )
             .expect(VISIBLE);
-        let back = dj.extras.expect(if forward { FLOW_PREV } else { FLOW_NEXT });
-        let mut loss = losses::wmse(warped.rgb, batch.target.clone(), vis) * wts.dynamic_photo
-            + losses::cycle(flow, back, prob.clone()) * wts.cycle
-            + prob.abs().mean() * wts.prob_reg;
+        let mut loss = losses::wmse(warped.rgb, batch.target.clone(), vis) * wts.dynamic_photo;
+        if !flow_terms {
+            return Ok(loss);
+        }
+        let back = back_at_j.unwrap_or_else(|| dj.extras.expect(if forward { FLOW_PREV } else { FLOW_NEXT }));
+        loss = loss + losses::cycle(flow, back, prob.clone()) * wts.cycle + prob.abs().mean() * wts.prob_reg;
         if let Some((density, rgb, deltas)) = consistency {
             let there = (dj.extras.expect(GATE) * dj.sigma.clone(), dj.rgb.clone());
             loss = loss
@@ -1242,6 +1280,43 @@ fn pick_neighbours(mut all: Vec<(usize, bool)>, keep: usize, rng: &mut StdRng) -
     (all, n as f32 / keep as f32)
 }
 
+/// How many frames a warp from frame `k` (of `frames`) towards the next (`forward`) or the
+/// previous frame reaches: uniform in `least` to `most` (1 ≤ `least`), cut where the video
+/// ends that way; 1 when even `least` leaves it. Draws nothing from `rng` when only one value
+/// is possible, so runs with `warp_hops` = 1 keep their random streams.
+fn warp_hops(
+    k: usize,
+    frames: usize,
+    forward: bool,
+    (least, most): (usize, usize),
+    rng: &mut StdRng,
+) -> usize {
+    let room = if forward { frames.saturating_sub(k + 1) } else { k };
+    let most = most.min(room);
+    if most <= least {
+        return if most == least { least } else { 1 };
+    }
+    rng.random_range(least..=most)
+}
+
+/// Carries points `x_j` (`[S, 3]`, already at the first frame of a warp) on for `hops` − 1 more
+/// frames: hop h (1-based, h < `hops`) adds the onward flow that `flow(x, h)` returns as
+/// (onward, back) at the h-th frame. The chained points, and the back flow at the first frame
+/// when there was a hop (for the cycle term; `None` for `hops` 1, whose field query has it).
+fn chain_flow(
+    x_j: Tensor<2>,
+    hops: usize,
+    mut flow: impl FnMut(Tensor<2>, usize) -> (Tensor<2>, Tensor<2>),
+) -> (Tensor<2>, Option<Tensor<2>>) {
+    let (mut x, mut back_at_j) = (x_j, None);
+    for h in 1..hops {
+        let (onward, back) = flow(x.clone(), h);
+        back_at_j.get_or_insert(back);
+        x = x + onward;
+    }
+    (x, back_at_j)
+}
+
 /// Per-sample value whose render the depth prior compares with monocular disparity: 1/t for a
 /// Euclidean ray (t is the camera depth), 1 − t in NDC (t = 1 − near/|z|, so 1 − t is
 /// proportional to the disparity). Either way the rendered value is affine in disparity where
@@ -1533,6 +1608,16 @@ mod tests {
         });
     }
 
+    /// So does the chained warp beside the neighbour's (weights 0.5 and 1: both runs draw the
+    /// same distances).
+    #[test]
+    fn the_chained_warp_reaches_the_dynamic_field_only() {
+        reaches_the_dynamic_field_only("nsff-chained-warp", [0.5, 1.0], |cfg, w| {
+            cfg.warp_hops = 3;
+            cfg.warp_chain_weight = w;
+        });
+    }
+
     /// One step's static and dynamic grid gradients with a term at `weights[0]` and at
     /// `weights[1]` (`set` applies one): the same static gradient, a different dynamic one.
     fn reaches_the_dynamic_field_only(name: &str, weights: [f64; 2], set: impl Fn(&mut NsffConfig, f64)) {
@@ -1700,6 +1785,104 @@ mod tests {
             crate::config::LossWeights::default().optical_flow
         );
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A warp's distance is uniform in 1..=`warp_hops`, cut where the video ends, and at 1
+    /// (the default) the random stream is left as it was.
+    #[test]
+    fn warp_hops_stay_in_the_video_and_cover_their_range() {
+        let mut rng = StdRng::seed_from_u64(4);
+        let before = rng.clone().random::<u64>();
+        for (k, forward) in [(3, true), (3, false), (0, true), (9, false)] {
+            assert_eq!(warp_hops(k, 10, forward, (1, 1), &mut rng), 1);
+        }
+        // At the last frame forward (or the first backward) there is no room: still 1; a
+        // chained warp (at least 2) with room for 2 only takes 2, and with room for 1 only says 1.
+        assert_eq!(warp_hops(9, 10, true, (1, 3), &mut rng), 1);
+        assert_eq!(warp_hops(0, 10, false, (1, 3), &mut rng), 1);
+        assert_eq!(warp_hops(7, 10, true, (2, 3), &mut rng), 2);
+        assert_eq!(warp_hops(1, 10, false, (2, 3), &mut rng), 1);
+        assert_eq!(
+            rng.random::<u64>(),
+            before,
+            "no draw when only one value is possible"
+        );
+        for (k, forward, least, max, room) in [
+            (5, true, 1, 3, 3),
+            (8, true, 1, 3, 1),
+            (7, true, 1, 3, 2),
+            (1, false, 1, 3, 1),
+            (2, false, 1, 4, 2),
+            (5, true, 2, 4, 4),
+            (3, false, 2, 4, 3),
+        ] {
+            let mut seen = vec![0usize; max + 1];
+            for _ in 0..600 {
+                seen[warp_hops(k, 10, forward, (least, max), &mut rng)] += 1;
+            }
+            let kinds = room.min(max) + 1 - least;
+            for (h, &c) in seen.iter().enumerate() {
+                if (least..=room).contains(&h) {
+                    assert!(c > 600 / kinds / 2, "frame {k}, {h} hops drawn {c} times of 600");
+                } else {
+                    assert_eq!(c, 0, "frame {k}: {h} hops are out of range");
+                }
+            }
+        }
+    }
+
+    /// Chained points follow the flow field frame by frame: against a float64 walk of the
+    /// same flow (a rotation about z with a frame-dependent rate), with the back flow taken at
+    /// the first frame only.
+    #[test]
+    fn chained_points_follow_the_flow_frame_by_frame() {
+        let device = Device::flex();
+        let rate = |h: usize| 0.1 + 0.05 * h as f64;
+        let onward = |p: &[f64], h: usize| -> [f64; 3] {
+            let (c, s) = (rate(h).cos(), rate(h).sin());
+            [c * p[0] - s * p[1] - p[0], s * p[0] + c * p[1] - p[1], 0.02]
+        };
+        let start: Vec<f32> = vec![0.5, 0.0, 0.1, -0.3, 0.4, -0.2];
+        let walk = |hops: usize| -> Vec<f64> {
+            let mut p: Vec<f64> = start.iter().map(|&v| v as f64).collect();
+            for h in 1..hops {
+                for q in p.chunks_mut(3) {
+                    let f = onward(q, h);
+                    (0..3).for_each(|a| q[a] += f[a]);
+                }
+            }
+            p
+        };
+        for hops in 1..=4 {
+            let mut calls = Vec::new();
+            let x = tensor(start.clone(), 3, &device);
+            let (got, back) = chain_flow(x, hops, |x, h| {
+                calls.push(h);
+                let p = nerf_core::readback::read_back(x, "points").unwrap();
+                let f: Vec<f32> = p
+                    .chunks(3)
+                    .flat_map(|q| onward(&q.iter().map(|&v| v as f64).collect::<Vec<_>>(), h))
+                    .map(|v| v as f32)
+                    .collect();
+                let back: Vec<f32> = vec![h as f32; p.len()];
+                (tensor(f, 3, &device), tensor(back, 3, &device))
+            });
+            assert_eq!(calls, (1..hops).collect::<Vec<_>>());
+            let got = nerf_core::readback::read_back(got, "chained").unwrap();
+            for (g, w) in got.iter().zip(walk(hops)) {
+                assert!((*g as f64 - w).abs() < 1e-6, "{hops} hops: {g} vs {w}");
+            }
+            match back {
+                None => assert_eq!(hops, 1),
+                Some(b) => {
+                    let b = nerf_core::readback::read_back(b, "back").unwrap();
+                    assert!(
+                        b.iter().all(|&v| v == 1.0),
+                        "the back flow of the first hop: {b:?}"
+                    );
+                }
+            }
+        }
     }
 
     /// A video's step warps towards both neighbours (one at either end); a jumping camera's
