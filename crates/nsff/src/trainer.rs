@@ -877,12 +877,18 @@ impl NsffTrainer {
             samples,
             &[Component::new(dj.sigma.clone(), dj.rgb.clone())],
         );
+        // p is the disocclusion towards the neighbour: a chained warp reads it as its weight
+        // but must not train it for a frame it does not model.
+        let seen = if hops > 1 {
+            prob.clone().detach()
+        } else {
+            prob.clone()
+        };
         let vis = self
             .render(
                 &batch.rays,
                 samples,
-                &[Component::channels_only(dj.sigma.clone().detach())
-                    .with(VISIBLE, prob.clone().neg() + 1.0)],
+                &[Component::channels_only(dj.sigma.clone().detach()).with(VISIBLE, seen.neg() + 1.0)],
             )
             .expect(VISIBLE);
         let mut loss = losses::wmse(warped.rgb, batch.target.clone(), vis) * wts.dynamic_photo;
