@@ -176,8 +176,6 @@ impl DynamicField {
         }
     }
 
-    /// The named extras from the raw head `[S, 9]` and, with its own network, the raw flow
-    /// `[S, 6]`.
     /// The scene flow alone at `[N, 3]` positions and their times `[N, 1]`: (to the previous
     /// frame, to the next), each `[N, 3]`, as a full query's [`FLOW_PREV`] and [`FLOW_NEXT`].
     /// From the flow grid when there is one (a fraction of a full query's cost), else from a
@@ -199,6 +197,8 @@ impl DynamicField {
         (flow.clone().slice([0..n, 0..3]), flow.slice([0..n, 3..6]))
     }
 
+    /// The named extras from the raw head `[S, 9]` and, with its own network, the raw flow
+    /// `[S, 6]`.
     fn extras(&self, raw: Extras, own_flow: Option<Tensor<2>>) -> Extras {
         let raw = raw.expect(RAW_EXTRA);
         let n = raw.dims()[0];
