@@ -212,35 +212,48 @@ fn prefetch(data: *const f32, i: usize) {
 const BLOCK: usize = 32;
 
 /// Streams every point of `pos` through one level: computes the corners a block ahead,
-/// prefetching the rows they touch in the buffer at `data` (its row 0 is table entry `base`,
-/// rows are `f_n` wide; a raw pointer because `consume` may be writing that buffer), and hands
-/// each point's corners to `consume(point, idx, w)`.
+/// prefetching the rows they touch in each buffer of `data` (a buffer's row 0 is table entry
+/// `base`, rows are `f_n` wide; raw pointers because `consume` may be writing a buffer), and
+/// hands each point's corners and in-cell position to `consume(point, idx, w, frac)` (the
+/// position only with `FRAC`; zeros otherwise, sparing the forward pass the stores).
 #[inline(always)]
-fn sweep_level<const D: usize, const C: usize, const DENSE: bool>(
+fn sweep_level<const D: usize, const C: usize, const DENSE: bool, const FRAC: bool>(
     level: &Level,
     pos: &[f32],
-    (data, base, f_n): (*const f32, usize, usize),
-    mut consume: impl FnMut(usize, &[u32; C], &[f32; C]),
+    data: &[(*const f32, usize)],
+    f_n: usize,
+    mut consume: impl FnMut(usize, &[u32; C], &[f32; C], &[f32; D]),
 ) {
     let n = pos.len() / D;
     let mut idx = [[[0u32; C]; BLOCK]; 2];
     let mut w = [[[0f32; C]; BLOCK]; 2];
-    let fill = |start: usize, idx: &mut [[u32; C]; BLOCK], w: &mut [[f32; C]; BLOCK]| {
+    let mut frac = [[[0f32; D]; BLOCK]; 2];
+    let fill = |start: usize,
+                idx: &mut [[u32; C]; BLOCK],
+                w: &mut [[f32; C]; BLOCK],
+                frac: &mut [[f32; D]; BLOCK]| {
         for p in start..(start + BLOCK).min(n) {
             let j = p - start;
-            corners::<D, C, DENSE>(level, &pos[p * D..(p + 1) * D], &mut idx[j], &mut w[j]);
+            let f = corners::<D, C, DENSE>(level, &pos[p * D..(p + 1) * D], &mut idx[j], &mut w[j]);
+            if FRAC {
+                frac[j] = f;
+            }
             for &i in idx[j].iter() {
-                prefetch(data, (i as usize - base) * f_n);
+                for &(buf, base) in data {
+                    prefetch(buf, (i as usize - base) * f_n);
+                }
             }
         }
     };
-    fill(0, &mut idx[0], &mut w[0]);
+    fill(0, &mut idx[0], &mut w[0], &mut frac[0]);
     for (b, start) in (0..n).step_by(BLOCK).enumerate() {
         let (idx_cur, idx_next) = split_pair(&mut idx, b % 2);
         let (w_cur, w_next) = split_pair(&mut w, b % 2);
-        fill(start + BLOCK, idx_next, w_next);
+        let (frac_cur, frac_next) = split_pair(&mut frac, b % 2);
+        fill(start + BLOCK, idx_next, w_next, frac_next);
         for p in start..(start + BLOCK).min(n) {
-            consume(p, &idx_cur[p - start], &w_cur[p - start]);
+            let j = p - start;
+            consume(p, &idx_cur[j], &w_cur[j], &frac_cur[j]);
         }
     }
 }
@@ -253,16 +266,17 @@ fn split_pair<T>(pair: &mut [T; 2], cur: usize) -> (&mut T, &mut T) {
 
 /// Calls `sweep_level` with `DENSE` matching the level.
 #[inline(always)]
-fn sweep<const D: usize, const C: usize>(
+fn sweep<const D: usize, const C: usize, const FRAC: bool>(
     level: &Level,
     pos: &[f32],
-    data: (*const f32, usize, usize),
-    consume: impl FnMut(usize, &[u32; C], &[f32; C]),
+    data: &[(*const f32, usize)],
+    f_n: usize,
+    consume: impl FnMut(usize, &[u32; C], &[f32; C], &[f32; D]),
 ) {
     if level.dense {
-        sweep_level::<D, C, true>(level, pos, data, consume)
+        sweep_level::<D, C, true, FRAC>(level, pos, data, f_n, consume)
     } else {
-        sweep_level::<D, C, false>(level, pos, data, consume)
+        sweep_level::<D, C, false, FRAC>(level, pos, data, f_n, consume)
     }
 }
 
@@ -389,7 +403,7 @@ impl HashGrid {
             .par_chunks_mut(n * f_n)
             .zip(&self.levels)
             .for_each(|(dst, level)| {
-                sweep::<D, C>(level, positions, (table.as_ptr(), 0, f_n), |p, idx, w| {
+                sweep::<D, C, false>(level, positions, &[(table.as_ptr(), 0)], f_n, |p, idx, w, _| {
                     let o = &mut dst[p * f_n..(p + 1) * f_n];
                     if f_n == 2 {
                         // The common case, unrolled into registers.
@@ -427,31 +441,56 @@ impl HashGrid {
         out
     }
 
-    /// Accumulates dL/dtable from dL/dfeatures `[N, L·F]` (parallel over levels: no races).
-    fn accumulate<const D: usize, const C: usize>(&self, positions: &[f32], grad_out: &[f32]) {
+    /// Accumulates dL/dtable from dL/dfeatures `[N, L·F]` into the gradient buffer and, when
+    /// `table` is given, returns dL/dpositions `[N, D]` as well. One level-major pass (parallel
+    /// over levels: no races) computes each point's corners once for both gradients; a task's
+    /// random table reads and writes stay within its level's rows (a few MB: cache-resident;
+    /// point-major reads of every level missed the cache: 8x slower on a 4-D grid).
+    fn backward_host<const D: usize, const C: usize>(
+        &self,
+        positions: &[f32],
+        grad_out: &[f32],
+        table: Option<&[f32]>,
+    ) -> Option<Vec<f32>> {
         let f_n = self.config.features;
         let width = self.levels.len() * f_n;
+        let n = positions.len() / D;
         let mut buf = self.grads.lock().unwrap_or_else(|e| e.into_inner());
         let GradBuffer { grad, dirty } = &mut *buf;
-        // Split the gradient buffer and the dirty flags by level (levels are contiguous).
-        let mut grad_parts = Vec::new();
+        // Split the gradient buffer and the dirty flags by level (levels are contiguous), and
+        // give each level its own rows of the position gradient (summed over levels below).
+        let mut by_level = vec![
+            0.0f32;
+            if table.is_some() {
+                self.levels.len() * n * D
+            } else {
+                0
+            }
+        ];
+        let mut dpos_parts = by_level.chunks_mut((n * D).max(1));
+        let mut parts = Vec::new();
         let (mut rest, mut rest_dirty) = (grad.as_mut_slice(), dirty.as_mut_slice());
         for level in &self.levels {
             let (a, b) = std::mem::take(&mut rest).split_at_mut(level.size * f_n);
             let (da, db) = std::mem::take(&mut rest_dirty).split_at_mut(level.size / BLOCK_ENTRIES);
-            grad_parts.push((a, da));
+            parts.push((a, da, dpos_parts.next()));
             rest = b;
             rest_dirty = db;
         }
         // Each level reads its own columns of the upstream gradient: a strided stream the
         // hardware prefetcher follows, cheaper than transposing the whole matrix first.
-        grad_parts
+        parts
             .into_par_iter()
             .enumerate()
             .zip(&self.levels)
-            .for_each(|((l, (g, dirty)), level)| {
+            .for_each(|((l, (g, dirty, mut dpos)), level)| {
                 let offset = level.offset;
-                sweep::<D, C>(level, positions, (g.as_ptr(), offset, f_n), |p, idx, w| {
+                let res: [f32; D] = std::array::from_fn(|a| level.resolutions[a] as f32);
+                let prefetch = [
+                    (g.as_ptr(), offset),
+                    (table.map_or(g.as_ptr(), <[f32]>::as_ptr), 0),
+                ];
+                let mut consume = |p: usize, idx: &[u32; C], w: &[f32; C], frac: &[f32; D]| {
                     let up = &grad_out[p * width + l * f_n..p * width + (l + 1) * f_n];
                     for k in 0..C {
                         let e = idx[k] as usize - offset;
@@ -466,40 +505,13 @@ impl HashGrid {
                             }
                         }
                     }
-                });
-            });
-    }
-
-    /// dL/dpositions `[N, D]` given dL/dfeatures. Level-major like [`Self::forward`]: one task
-    /// streams all points through one level, so its random table reads stay within that
-    /// level's table (point-major reads of every level missed the cache: 8x slower on a 4-D grid).
-    fn position_grad<const D: usize, const C: usize>(
-        &self,
-        table: &[f32],
-        positions: &[f32],
-        grad_out: &[f32],
-    ) -> Vec<f32> {
-        let f_n = self.config.features;
-        let width = self.levels.len() * f_n;
-        let n = positions.len() / D;
-        let mut by_level = vec![0.0f32; self.levels.len() * n * D];
-        by_level
-            .par_chunks_mut((n * D).max(1))
-            .zip(&self.levels)
-            .enumerate()
-            .for_each(|(l, (dst, level))| {
-                let res: [f32; D] = std::array::from_fn(|a| level.resolutions[a] as f32);
-                for (p, (dx, x)) in dst.chunks_exact_mut(D).zip(positions.chunks_exact(D)).enumerate() {
-                    let mut idx = [0u32; C];
-                    let mut wts = [0f32; C];
-                    let frac = if level.dense {
-                        corners::<D, C, true>(level, x, &mut idx, &mut wts)
-                    } else {
-                        corners::<D, C, false>(level, x, &mut idx, &mut wts)
+                    let (Some(table), Some(dpos)) = (table, dpos.as_deref_mut()) else {
+                        return;
                     };
-                    let up = &grad_out[p * width + l * f_n..p * width + (l + 1) * f_n];
+                    let x = &positions[p * D..(p + 1) * D];
+                    let dx = &mut dpos[p * D..(p + 1) * D];
                     let mut dot = [0f32; C];
-                    for (d, &i) in dot.iter_mut().zip(&idx) {
+                    for (d, &i) in dot.iter_mut().zip(idx) {
                         let row = &table[i as usize * f_n..(i as usize + 1) * f_n];
                         *d = row.iter().zip(up).map(|(t, u)| t * u).sum();
                     }
@@ -520,8 +532,14 @@ impl HashGrid {
                         }
                         dx[a] += res[a] * acc;
                     }
+                };
+                if table.is_some() {
+                    sweep::<D, C, true>(level, positions, &prefetch, f_n, &mut consume);
+                } else {
+                    sweep::<D, C, false>(level, positions, &prefetch[..1], f_n, &mut consume);
                 }
             });
+        table?;
         // Sum the levels per coordinate, parallel over rows.
         let mut out = vec![0.0f32; n * D];
         out.par_chunks_mut(D * 1024)
@@ -532,7 +550,7 @@ impl HashGrid {
                     *v = (0..self.levels.len()).map(|l| by_level[l * n * D + j]).sum();
                 }
             });
-        out
+        Some(out)
     }
 
     /// Clears accumulated gradients (when a step is skipped).
@@ -611,22 +629,21 @@ impl HostKernel for HashEncodeKernel {
         let pos = &inputs[0].data;
         let g = &self.grid;
 
-        crate::profile::span("bwd.hash_table", || match g.config.dims {
-            1 => g.accumulate::<1, 2>(pos, &grad.data),
-            2 => g.accumulate::<2, 4>(pos, &grad.data),
-            3 => g.accumulate::<3, 8>(pos, &grad.data),
-            _ => g.accumulate::<4, 16>(pos, &grad.data),
-        });
-        let dpos = wanted[0].then(|| {
-            let table = g.table.read().unwrap_or_else(|e| e.into_inner());
-            let d = crate::profile::span("bwd.hash_position", || match g.config.dims {
-                1 => g.position_grad::<1, 2>(&table, pos, &grad.data),
-                2 => g.position_grad::<2, 4>(&table, pos, &grad.data),
-                3 => g.position_grad::<3, 8>(&table, pos, &grad.data),
-                _ => g.position_grad::<4, 16>(&table, pos, &grad.data),
-            });
-            HostTensor::new(inputs[0].shape.clone(), d)
-        });
+        // Positions that want a gradient read the table as the table gradient is accumulated.
+        let table = wanted[0].then(|| g.table.read().unwrap_or_else(|e| e.into_inner()));
+        let table = table.as_deref().map(Vec::as_slice);
+        let name = if table.is_some() {
+            "bwd.hash_table_position"
+        } else {
+            "bwd.hash_table"
+        };
+        let dpos = crate::profile::span(name, || match g.config.dims {
+            1 => g.backward_host::<1, 2>(pos, &grad.data, table),
+            2 => g.backward_host::<2, 4>(pos, &grad.data, table),
+            3 => g.backward_host::<3, 8>(pos, &grad.data, table),
+            _ => g.backward_host::<4, 16>(pos, &grad.data, table),
+        })
+        .map(|d| HostTensor::new(inputs[0].shape.clone(), d));
         vec![dpos, None]
     }
 }
