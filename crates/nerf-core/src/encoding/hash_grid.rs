@@ -441,8 +441,8 @@ impl HashGrid {
         out
     }
 
-    /// Accumulates dL/dtable from dL/dfeatures `[N, L·F]` into the gradient buffer and, when
-    /// `table` is given, returns dL/dpositions `[N, D]` as well. One level-major pass (parallel
+    /// Accumulates dL/dtable from dL/dfeatures `[N, L·F]` into the gradient buffer and, with
+    /// `want_positions`, returns dL/dpositions `[N, D]` as well. One level-major pass (parallel
     /// over levels: no races) computes each point's corners once for both gradients; a task's
     /// random table reads and writes stay within its level's rows (a few MB: cache-resident;
     /// point-major reads of every level missed the cache: 8x slower on a 4-D grid).
@@ -450,13 +450,17 @@ impl HashGrid {
         &self,
         positions: &[f32],
         grad_out: &[f32],
-        table: Option<&[f32]>,
+        want_positions: bool,
     ) -> Option<Vec<f32>> {
         let f_n = self.config.features;
         let width = self.levels.len() * f_n;
         let n = positions.len() / D;
         let mut buf = self.grads.lock().unwrap_or_else(|e| e.into_inner());
         let GradBuffer { grad, dirty } = &mut *buf;
+        // The position gradient reads the table. Locked after the gradient buffer, the order
+        // `adam_step` takes them in.
+        let table = want_positions.then(|| self.table.read().unwrap_or_else(|e| e.into_inner()));
+        let table = table.as_deref().map(Vec::as_slice);
         // Split the gradient buffer and the dirty flags by level (levels are contiguous), and
         // give each level its own rows of the position gradient (summed over levels below).
         let mut by_level = vec![
@@ -629,19 +633,17 @@ impl HostKernel for HashEncodeKernel {
         let pos = &inputs[0].data;
         let g = &self.grid;
 
-        // Positions that want a gradient read the table as the table gradient is accumulated.
-        let table = wanted[0].then(|| g.table.read().unwrap_or_else(|e| e.into_inner()));
-        let table = table.as_deref().map(Vec::as_slice);
-        let name = if table.is_some() {
+        let want = wanted[0];
+        let name = if want {
             "bwd.hash_table_position"
         } else {
             "bwd.hash_table"
         };
         let dpos = crate::profile::span(name, || match g.config.dims {
-            1 => g.backward_host::<1, 2>(pos, &grad.data, table),
-            2 => g.backward_host::<2, 4>(pos, &grad.data, table),
-            3 => g.backward_host::<3, 8>(pos, &grad.data, table),
-            _ => g.backward_host::<4, 16>(pos, &grad.data, table),
+            1 => g.backward_host::<1, 2>(pos, &grad.data, want),
+            2 => g.backward_host::<2, 4>(pos, &grad.data, want),
+            3 => g.backward_host::<3, 8>(pos, &grad.data, want),
+            _ => g.backward_host::<4, 16>(pos, &grad.data, want),
         })
         .map(|d| HostTensor::new(inputs[0].shape.clone(), d));
         vec![dpos, None]
