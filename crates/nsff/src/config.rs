@@ -330,6 +330,12 @@ pub struct NsffConfig {
     /// batch is a `nerf train` step. Videos take 0.5, a jumping camera 1.
     #[serde(default = "default_static_batch_scale")]
     pub static_batch_scale: f32,
+    /// The static batch's share during the static warm-up, where it is the whole step; `None`
+    /// (and checkpoints from before it): `static_batch_scale`. At 1 (NeRF's batch) it was level
+    /// on the six tuning videos at 600 s with 18 % fewer steps, so opt-in (BENCHMARKS.md §6,
+    /// forty-seventh session).
+    #[serde(default)]
+    pub warm_up_batch_scale: Option<f32>,
     /// Samples of the space-time batch (one frame, four field queries per sample) per step, as a
     /// share of the static pipeline's `target_samples`; its ray count adapts to keep it.
     /// Videos take 0.5, a jumping camera 1.
@@ -692,6 +698,7 @@ impl NsffConfig {
             hard_fraction: default_hard_fraction(),
             static_batch: default_static_batch(),
             static_batch_scale: VIDEO_STATIC_BATCH_SCALE,
+            warm_up_batch_scale: None,
             space_time_share: VIDEO_SPACE_TIME_SHARE,
             dynamic_photo_masked: false,
             dynamic_photo_still: default_dynamic_photo_still(),
@@ -856,6 +863,9 @@ impl NsffConfig {
                         (they act on the static batch's masked rays, which only masked_static draws)"
                     .to_string(),
             );
+        }
+        if let Some(s) = self.warm_up_batch_scale.filter(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err(format!("warm_up_batch_scale must be a positive number, got {s}"));
         }
         if !(self.masked_static_scale.is_finite() && self.masked_static_scale > 0.0) {
             return Err(format!(

@@ -333,7 +333,11 @@ impl NsffTrainer {
                 self.n_rays = (want as usize).clamp(self.cfg.min_rays, self.cfg.rays.max(self.cfg.min_rays));
             }
             if static_samples > 0 {
-                let want = adapt(self.n_static_rays, static_samples, self.cfg.static_batch_scale);
+                let scale = match (warm_up, self.cfg.warm_up_batch_scale) {
+                    (true, Some(s)) => s,
+                    _ => self.cfg.static_batch_scale,
+                };
+                let want = adapt(self.n_static_rays, static_samples, scale);
                 self.n_static_rays = (want as usize).clamp(f.min_rays, f.max_rays);
             }
         }
@@ -2392,6 +2396,52 @@ mod tests {
             .expect("a video refuses it");
         assert!(err.to_string().contains("frames_per_batch"), "{err}");
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// The warm-up's static batch keeps `warm_up_batch_scale` of the static pipeline's samples
+    /// when set (twice a video's half batch at 1), and the space-time phase's keeps
+    /// `static_batch_scale` again.
+    #[test]
+    fn the_warm_up_batch_takes_its_own_scale() {
+        let rays_after = |scale: Option<f32>| {
+            let (dir, mut cfg, video) = temp_video(&format!("nsff-warm-batch-{scale:?}"));
+            cfg.dynamic = DynamicMode::On;
+            cfg.adapt_to(&video.dataset, video.frames.len());
+            assert_eq!(cfg.warm_up_batch_scale, None, "opt-in");
+            cfg.base.steps = 4;
+            cfg.base.time_budget = None;
+            cfg.static_warm_up = 0.5;
+            cfg.warm_up_batch_scale = scale;
+            // Enough samples that neither batch sits at the ray-count clamps on this small video.
+            cfg.base.fast.target_samples = 1 << 15;
+            assert!(cfg.validate().is_ok());
+            let mut t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
+            let mut rays = Vec::new();
+            for _ in 0..3 {
+                let warm = t.in_static_warm_up();
+                t.train_step().unwrap().expect("a finite step");
+                rays.push((warm, t.n_static_rays as f64));
+            }
+            let _ = std::fs::remove_dir_all(&dir);
+            rays
+        };
+        let (half, full) = (rays_after(None), rays_after(Some(1.0)));
+        assert_eq!(half.iter().map(|r| r.0).collect::<Vec<_>>(), [true, true, false]);
+        // The first step draws the same rays and samples in both runs: twice the rays to keep.
+        let first = full[0].1 / half[0].1;
+        assert!(
+            (first - 2.0).abs() < 0.05,
+            "first warm-up step: {first}× the rays"
+        );
+        // After the warm-up both keep half the static pipeline's samples: within the spread of
+        // samples per ray between two differently trained fields, not twice.
+        let after = full[2].1 / half[2].1;
+        assert!((0.6..1.5).contains(&after), "space-time step: {after}× the rays");
+        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
+        for bad in [0.0, -1.0, f32::NAN] {
+            cfg.warm_up_batch_scale = Some(bad);
+            assert!(cfg.validate().unwrap_err().contains("warm_up_batch_scale"));
+        }
     }
 
     /// During the static warm-up a step leaves the dynamic field untouched and trains the static
