@@ -1996,12 +1996,18 @@ mod tests {
         (dir, cfg, video)
     }
 
-    /// A trainer on a small video that starts in the space-time phase (no static warm-up), the
-    /// dynamic field on, `tweak` applied to its settings; with the temporary folder to remove.
-    fn space_time_trainer(name: &str, tweak: impl FnOnce(&mut NsffConfig)) -> (PathBuf, NsffTrainer) {
+    /// [`temp_video`] with the dynamic field on and the settings adapted to the video.
+    fn dynamic_video(name: &str) -> (PathBuf, NsffConfig, Video) {
         let (dir, mut cfg, video) = temp_video(name);
         cfg.dynamic = DynamicMode::On;
         cfg.adapt_to(&video.dataset, video.frames.len());
+        (dir, cfg, video)
+    }
+
+    /// A trainer on a small video that starts in the space-time phase (no static warm-up), the
+    /// dynamic field on, `tweak` applied to its settings; with the temporary folder to remove.
+    fn space_time_trainer(name: &str, tweak: impl FnOnce(&mut NsffConfig)) -> (PathBuf, NsffTrainer) {
+        let (dir, mut cfg, video) = dynamic_video(name);
         cfg.static_warm_up = 0.0;
         tweak(&mut cfg);
         // One model per test, its settings changed between the steps compared (the device's
@@ -2404,9 +2410,7 @@ mod tests {
     #[test]
     fn the_warm_up_batch_takes_its_own_scale() {
         let rays_after = |scale: Option<f32>| {
-            let (dir, mut cfg, video) = temp_video(&format!("nsff-warm-batch-{scale:?}"));
-            cfg.dynamic = DynamicMode::On;
-            cfg.adapt_to(&video.dataset, video.frames.len());
+            let (dir, mut cfg, video) = dynamic_video(&format!("nsff-warm-batch-{scale:?}"));
             assert_eq!(cfg.warm_up_batch_scale, None, "opt-in");
             cfg.base.steps = 4;
             cfg.base.time_budget = None;
