@@ -17,6 +17,16 @@ pub enum Preset {
     Vanilla,
 }
 
+impl Preset {
+    /// The learning rate's start and end (exponential decay between them).
+    pub fn learning_rates(self) -> (f64, f64) {
+        match self {
+            Preset::Fast => (1e-2, 1e-3),
+            Preset::Vanilla => (5e-4, 5e-5),
+        }
+    }
+}
+
 /// Fast-preset settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FastSettings {
@@ -94,10 +104,7 @@ pub struct TrainConfig {
 impl TrainConfig {
     /// Defaults for a preset, adapted to the dataset (scene box, NDC, background).
     pub fn new(preset: Preset, data: std::path::PathBuf, load: LoadOptions) -> Self {
-        let (lr, lr_final) = match preset {
-            Preset::Fast => (1e-2, 1e-3),
-            Preset::Vanilla => (5e-4, 5e-5),
-        };
+        let (lr, lr_final) = preset.learning_rates();
         TrainConfig {
             preset,
             data,
@@ -251,8 +258,13 @@ impl TrainConfig {
 
     /// Learning rate at a given progress (exponential decay from `lr` to `lr_final`).
     pub fn lr_at(&self, progress: f64) -> f64 {
-        self.lr * (self.lr_final / self.lr).powf(progress.clamp(0.0, 1.0))
+        exponential_lr(self.lr, self.lr_final, progress)
     }
+}
+
+/// Exponential decay from `first` to `last` at `progress` ∈ [0, 1] (clamped).
+pub fn exponential_lr(first: f64, last: f64, progress: f64) -> f64 {
+    first * (last / first).powf(progress.clamp(0.0, 1.0))
 }
 
 /// Applies `key.path=value` overrides (values parsed as JSON, else taken as strings), e.g.

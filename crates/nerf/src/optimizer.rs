@@ -46,6 +46,38 @@ impl Optimizer {
         module
     }
 
+    /// As [`Optimizer::step`], with one part of the module at its own learning rate: `part`
+    /// picks the submodule, whose parameters and host tables `part_host` step at `part_lr`
+    /// (its gradients are taken out of the whole before the rest step at `lr`).
+    #[allow(clippy::too_many_arguments)]
+    pub fn step_with_part<M: Module, P: Module>(
+        &mut self,
+        loss: Tensor<1>,
+        lr: f64,
+        module: M,
+        host: &[Arc<HashGrid>],
+        part: impl Fn(&M) -> &P,
+        part_lr: f64,
+        part_host: &[Arc<HashGrid>],
+    ) -> M {
+        let mut grads = span("backward", || loss.backward());
+        let part_grads = GradientsParams::from_module(&mut grads, part(&module));
+        let grads = GradientsParams::from_grads(grads, &module);
+        let module = span("adam_mlp", || {
+            let module = self.module.step(part_lr, module, part_grads);
+            self.module.step(lr, module, grads)
+        });
+        span("adam_grid", || {
+            for g in part_host {
+                g.adam_step(&self.host, part_lr);
+            }
+            for g in host {
+                g.adam_step(&self.host, lr);
+            }
+        });
+        module
+    }
+
     /// Drops what a skipped step accumulated in the host tables.
     pub fn skip(&self, host: &[Arc<HashGrid>]) {
         for g in host {

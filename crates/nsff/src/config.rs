@@ -397,6 +397,12 @@ pub struct NsffConfig {
     /// the rate of 30 % into the run. Checkpoints from before it read false.
     #[serde(default)]
     pub lr_decay_after_warm_up: bool,
+    /// The static field's own final learning rate (its tables and networks decay from
+    /// `base.lr` to this over the same schedule); `None`: `base.lr_final`, as the dynamic
+    /// field's. The two fields learn differently: a static cell is seen by every step, a
+    /// space-time cell of the finest levels by one frame's steps only.
+    #[serde(default)]
+    pub static_lr_final: Option<f64>,
     /// Ends the static warm-up early once the occupancy grid fills up again to this many times
     /// its lowest occupied fraction (and by at least 10 % of the grid): the sign that the views
     /// disagree and the static field paints fog where things move. 0: off (videos, whose
@@ -572,6 +578,12 @@ const VIDEO_MOVING_DYNAMIC: f64 = 0.01;
 // field query, so no extra cost.
 const VIDEO_FIELD_CONSISTENCY: f64 = 0.1;
 
+// A video's learning rate ends at 0.3 × its start (the fast preset's 1e-2 to 3e-3, against
+// NeRF's 1e-3): on the six tuning videos in two screens, +0.18 and +0.21 dB on the mean, +0.40
+// and +0.33 between frames, −0.04 and +0.09 off the path; 6e-3 gained less (BENCHMARKS.md §6,
+// forty-ninth and fiftieth sessions).
+const VIDEO_LR_FINAL_RATIO: f64 = 0.3;
+
 fn default_sparsity_points() -> usize {
     2048
 }
@@ -713,6 +725,7 @@ impl NsffConfig {
             static_random_background: false,
             masked_random_background: false,
             lr_decay_after_warm_up: true,
+            static_lr_final: None,
             sparsity_points: VIDEO_SPARSITY_POINTS,
             error_rays: 0.0,
             time_jitter: 0.0,
@@ -758,6 +771,7 @@ impl NsffConfig {
             self.base.fast.march.step = extent * 3f32.sqrt() / 128.0;
             if self.base.preset == Preset::Fast {
                 self.use_flow_grid();
+                self.base.lr_final = VIDEO_LR_FINAL_RATIO * self.base.lr;
             }
         }
     }
@@ -808,6 +822,8 @@ impl NsffConfig {
         // The consistency term was screened on videos only.
         self.weights.field_consistency = LossWeights::default().field_consistency;
         self.weights.still_persistence = LossWeights::default().still_persistence;
+        // The learning rate's end was screened on videos only.
+        self.base.lr_final = self.base.preset.learning_rates().1;
         // No optical flow, so no flow term trains a flow grid: the shared head, as screened.
         self.flow_levels = 0;
         self.flow_detach_weights = false;
@@ -866,6 +882,9 @@ impl NsffConfig {
         }
         if let Some(s) = self.warm_up_batch_scale.filter(|s| !(s.is_finite() && *s > 0.0)) {
             return Err(format!("warm_up_batch_scale must be a positive number, got {s}"));
+        }
+        if let Some(r) = self.static_lr_final.filter(|r| !(r.is_finite() && *r > 0.0)) {
+            return Err(format!("static_lr_final must be a positive number, got {r}"));
         }
         if !(self.masked_static_scale.is_finite() && self.masked_static_scale > 0.0) {
             return Err(format!(
@@ -1058,7 +1077,9 @@ mod tests {
     /// a jumping camera, whose settings were chosen with full batches and the term, keeps them.
     /// Both share time on the space-time grid's coarse levels and render at half the step. A
     /// video's warm-up refreshes the occupancy grid from the static field alone; a jumping
-    /// camera's, whose exit rule reads the grid, from the combined density as measured.
+    /// camera's, whose exit rule reads the grid, from the combined density as measured, and
+    /// its learning rate ends where the preset's does (a video's higher end was screened on
+    /// videos only).
     #[test]
     fn videos_halve_the_batches_and_jumping_cameras_keep_them() {
         let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
@@ -1071,7 +1092,13 @@ mod tests {
             (cfg.weights.moving_dynamic, cfg.moving_dynamic_until),
             (0.01, 0.2)
         );
+        cfg.base.lr_final = 3e-3; // as a video's adapt_to leaves it
         cfg.adapt_to_jumping_camera();
+        assert_eq!(
+            (cfg.base.lr, cfg.base.lr_final),
+            (1e-2, 1e-3),
+            "the preset's rates"
+        );
         assert_eq!((cfg.static_batch_scale, cfg.space_time_share), (1.0, 1.0));
         assert_eq!(cfg.sparsity_points, 512);
         assert_eq!((cfg.weights.entropy, cfg.weights.moving_dynamic), (1e-3, 0.0));

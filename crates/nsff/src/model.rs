@@ -38,10 +38,13 @@ impl NsffFields {
     /// The hash grids (fast preset), for their sparse optimiser steps and checkpoints.
     pub fn host_params(&self) -> Vec<Arc<HashGrid>> {
         let mut out = self.static_field.host_params();
-        if let Some(d) = &self.dynamic {
-            out.extend(d.host_params());
-        }
+        out.extend(self.dynamic_host_params());
         out
+    }
+
+    /// The dynamic field's hash grids (none without it).
+    pub fn dynamic_host_params(&self) -> Vec<Arc<HashGrid>> {
+        self.dynamic.as_ref().map(|d| d.host_params()).unwrap_or_default()
     }
 }
 

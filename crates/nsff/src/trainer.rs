@@ -295,8 +295,22 @@ impl NsffTrainer {
             self.optim.skip(&host);
             return Ok(None);
         }
-        let lr = self.lr();
-        self.model.fields = self.optim.step(loss, lr, self.model.fields.clone(), &host);
+        let (lr, static_lr) = (self.lr(), self.static_lr());
+        self.model.fields = if static_lr == lr {
+            self.optim.step(loss, lr, self.model.fields.clone(), &host)
+        } else {
+            let fields = &self.model.fields;
+            let (statics, dynamics) = (fields.static_field.host_params(), fields.dynamic_host_params());
+            self.optim.step_with_part(
+                loss,
+                lr,
+                fields.clone(),
+                &dynamics,
+                |f| &f.static_field,
+                static_lr,
+                &statics,
+            )
+        };
         self.step += 1;
         if self.model.occupancy.as_ref().is_some_and(|o| o.due(self.step)) {
             // One random training time of the bin per refreshed point: a cell the moving object
@@ -352,11 +366,24 @@ impl NsffTrainer {
 
     /// The learning rate now.
     fn lr(&self) -> f64 {
-        self.cfg.base.lr_at(if self.cfg.lr_decay_after_warm_up {
+        self.cfg.base.lr_at(self.lr_progress())
+    }
+
+    /// The static field's rate: `static_lr_final`'s schedule, else the common one.
+    fn static_lr(&self) -> f64 {
+        match self.cfg.static_lr_final {
+            Some(last) => nerf::config::exponential_lr(self.cfg.base.lr, last, self.lr_progress()),
+            None => self.lr(),
+        }
+    }
+
+    /// How far the learning rates have decayed, in [0, 1].
+    fn lr_progress(&self) -> f64 {
+        if self.cfg.lr_decay_after_warm_up {
             self.after_warm_up()
         } else {
             self.cfg.base.progress(self.step, self.elapsed)
-        })
+        }
     }
 
     /// The budget's progress counted from the end of the static warm-up, in [0, 1] (0 during it).
@@ -1763,8 +1790,9 @@ mod tests {
     }
 
     /// A video in the fast preset takes its scene flow from its own grid, trained by the
-    /// projected-flow term mostly through detached render weights; the vanilla preset and a
-    /// jumping camera (no optical flow to train it) keep the shared head and NSFF's weight.
+    /// projected-flow term mostly through detached render weights, and its learning rate ends
+    /// at 0.3 × its start; the vanilla preset and a jumping camera (no optical flow to train
+    /// it) keep the shared head and NSFF's weight.
     #[test]
     fn a_video_s_scene_flow_has_its_own_grid() {
         let (dir, mut cfg, video) = temp_video("nsff-flow-grid");
@@ -1775,10 +1803,21 @@ mod tests {
         assert_eq!(cfg.flow_levels, 4);
         assert!(cfg.flow_detach_weights);
         assert_eq!((cfg.flow_weights_share, cfg.weights.optical_flow), (0.1, 0.2));
+        assert_eq!(
+            (cfg.base.lr, cfg.base.lr_final),
+            (1e-2, 0.3 * 1e-2),
+            "a video's rate ends higher"
+        );
         assert!(cfg.validate().is_ok());
         vanilla.base.preset = Preset::Vanilla;
+        (vanilla.base.lr, vanilla.base.lr_final) = Preset::Vanilla.learning_rates();
         vanilla.adapt_to(&video.dataset, video.frames.len());
         assert_eq!(vanilla.flow_levels, 0);
+        assert_eq!(
+            (vanilla.base.lr, vanilla.base.lr_final),
+            (5e-4, 5e-5),
+            "not screened"
+        );
         assert!(
             vanilla.validate().is_ok(),
             "the vanilla preset refuses a flow grid"
@@ -2495,5 +2534,42 @@ mod tests {
         let old = lr0 * (lr1 / lr0).powf(0.75);
         assert!((t.lr() - old).abs() < 1e-9 * lr0, "lr {} vs {old}", t.lr());
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// `static_lr_final` gives the static field its own decay: the same start as the dynamic
+    /// field, its own end. Decayed to next to nothing, a step leaves the static field's tables
+    /// as they were while the dynamic field's still move.
+    #[test]
+    fn the_static_field_decays_to_its_own_rate() {
+        let (dir, mut t) = space_time_trainer("nsff-static-lr", |c| {
+            assert_eq!(c.static_lr_final, None, "opt-in");
+            c.base.steps = 2;
+            c.base.time_budget = None;
+            c.static_lr_final = Some(1e-300);
+            assert!(c.validate().is_ok());
+        });
+        let (lr0, lr1) = (t.cfg.base.lr, t.cfg.base.lr_final);
+        assert_eq!((t.lr(), t.static_lr()), (lr0, lr0), "both start at base.lr");
+        t.train_step().unwrap().expect("a finite step");
+        // Half-way: the dynamic field at sqrt(lr0 lr1), the static one at sqrt(lr0 1e-300).
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b;
+        assert!(close(t.lr(), (lr0 * lr1).sqrt()), "lr {}", t.lr());
+        assert!(
+            close(t.static_lr(), (lr0 * 1e-300).sqrt()),
+            "static lr {}",
+            t.static_lr()
+        );
+        let dynamic = |t: &NsffTrainer| tables(t.model.fields.dynamic.as_ref().unwrap().host_params());
+        let still = |t: &NsffTrainer| tables(t.model.fields.static_field.host_params());
+        let (dyn0, st0) = (dynamic(&t), still(&t));
+        t.train_step().unwrap().expect("a finite step");
+        assert_eq!(still(&t), st0, "the static field moved at a rate of 1e-151");
+        assert_ne!(dynamic(&t), dyn0, "the dynamic field did not move");
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            cfg.static_lr_final = Some(bad);
+            assert!(cfg.validate().unwrap_err().contains("static_lr_final"));
+        }
     }
 }
