@@ -1,5 +1,6 @@
 //! The one optimiser step every model takes: burn's Adam on the module's parameters, and the
-//! sparse Adam of each host-side table (hash grids), at the same learning rate.
+//! sparse Adam of each host-side table (hash grids), at the step's learning rate (one part of the
+//! module may take its own, [`Optimizer::step_with_part`]).
 
 use std::sync::Arc;
 
@@ -37,13 +38,7 @@ impl Optimizer {
     pub fn step<M: Module>(&mut self, loss: Tensor<1>, lr: f64, module: M, host: &[Arc<HashGrid>]) -> M {
         let grads = span("backward", || loss.backward());
         let grads = GradientsParams::from_grads(grads, &module);
-        let module = span("adam_mlp", || self.module.step(lr, module, grads));
-        span("adam_grid", || {
-            for g in host {
-                g.adam_step(&self.host, lr);
-            }
-        });
-        module
+        self.update(module, [(grads, lr)], [(host, lr)])
     }
 
     /// As [`Optimizer::step`], with one part of the module at its own learning rate: `part`
@@ -63,16 +58,30 @@ impl Optimizer {
         let mut grads = span("backward", || loss.backward());
         let part_grads = GradientsParams::from_module(&mut grads, part(&module));
         let grads = GradientsParams::from_grads(grads, &module);
+        self.update(
+            module,
+            [(part_grads, part_lr), (grads, lr)],
+            [(part_host, part_lr), (host, lr)],
+        )
+    }
+
+    /// Adam on each group of the module's gradients and of the host tables, at its rate.
+    fn update<M: Module, const N: usize>(
+        &mut self,
+        module: M,
+        grads: [(GradientsParams, f64); N],
+        host: [(&[Arc<HashGrid>], f64); N],
+    ) -> M {
         let module = span("adam_mlp", || {
-            let module = self.module.step(part_lr, module, part_grads);
-            self.module.step(lr, module, grads)
+            grads
+                .into_iter()
+                .fold(module, |m, (g, lr)| self.module.step(lr, m, g))
         });
         span("adam_grid", || {
-            for g in part_host {
-                g.adam_step(&self.host, part_lr);
-            }
-            for g in host {
-                g.adam_step(&self.host, lr);
+            for (grids, lr) in host {
+                for g in grids {
+                    g.adam_step(&self.host, lr);
+                }
             }
         });
         module
