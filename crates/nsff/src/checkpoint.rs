@@ -27,6 +27,10 @@ pub struct NsffState {
     /// Rays of the static batch per step (adapted the same way); 0 in older checkpoints.
     #[serde(default)]
     pub n_static_rays: usize,
+    /// Whether the motion masks were refined (`mask_refine_quantile`); the pixels taken out
+    /// are in the `mask_refined` section. False in older checkpoints.
+    #[serde(default)]
+    pub masks_refined: bool,
 }
 
 /// Writes an NSFF model's sections ("bounds", "times" and the "model" parts).

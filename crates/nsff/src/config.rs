@@ -371,9 +371,27 @@ pub struct NsffConfig {
     /// thirty-eighth session).
     #[serde(default)]
     pub masked_static: f32,
+    /// `masked_static` during the static warm-up only: the static field learns the still matter
+    /// the masks hold (a plate whose flow fails) before `mask_refine_quantile` reads its errors,
+    /// and the space-time phase draws outside the (refined) masks again. False (the default,
+    /// and what checkpoints from before it read): all run long. Opt-in: with `masked_static` 1
+    /// it gains 0.52 dB off the path on the seven tuning videos at 600 s and loses 0.46 between
+    /// frames, the mean level (BENCHMARKS.md §6, fifty-first session).
+    #[serde(default)]
+    pub masked_static_warm_up_only: bool,
     /// τ of `masked_static`'s weight, in units of the unmasked rays' mean squared error.
     #[serde(default = "default_masked_static_scale")]
     pub masked_static_scale: f32,
+    /// When the static warm-up ends, the static field renders every frame's masked pixels, and
+    /// a masked pixel whose 3×3 masked neighbourhood it renders with a squared error at most
+    /// this quantile of the unmasked pixels' errors leaves the motion mask for the rest of the
+    /// run ([`crate::mask_refine`]): static content the flow's masks hold (occlusion edges, the
+    /// dilation's ring) goes back to the static batch, and a mover, which the static field has
+    /// never seen, stays. 0 (the default, and what checkpoints from before it read): off.
+    /// Opt-in: at 0.9 it lost 0.2-0.4 dB on three tuning videos, and on top of
+    /// `masked_static_warm_up_only` 0.22 dB on the seven (BENCHMARKS.md §6, fifty-first session).
+    #[serde(default)]
+    pub mask_refine_quantile: f32,
     /// The warm-up's static batch composites RGBA frames over a random colour per ray (as `nerf
     /// train` does): over white, masked pixels against the sky teach white density, and the
     /// off-path views lose up to 5.7 dB (BENCHMARKS.md §6, twenty-third session). Checkpoints from
@@ -720,6 +738,8 @@ impl NsffConfig {
             static_warm_up: 0.3,
             warm_up_masked: 0.0,
             masked_static: 0.0,
+            mask_refine_quantile: 0.0,
+            masked_static_warm_up_only: false,
             masked_static_scale: default_masked_static_scale(),
             warm_up_random_background: false,
             static_random_background: false,
@@ -885,6 +905,12 @@ impl NsffConfig {
         }
         if let Some(r) = self.static_lr_final.filter(|r| !(r.is_finite() && *r > 0.0)) {
             return Err(format!("static_lr_final must be a positive number, got {r}"));
+        }
+        if !(0.0..=1.0).contains(&self.mask_refine_quantile) {
+            return Err(format!(
+                "mask_refine_quantile must be in [0, 1], got {}",
+                self.mask_refine_quantile
+            ));
         }
         if !(self.masked_static_scale.is_finite() && self.masked_static_scale > 0.0) {
             return Err(format!(

@@ -54,7 +54,12 @@ pub struct NsffTrainer {
     profiling_warm_up: bool,
     /// The blend on the last sampled space-time batch's rays (the status line's readout).
     blend_readout: Cell<Option<BlendReadout>>,
+    /// Per frame, the pixels `mask_refine_quantile` took out of the motion masks, once done.
+    mask_refined: Option<Vec<Vec<bool>>>,
 }
+
+/// Unmasked pixels per frame whose static-field error sets `mask_refine_quantile`'s threshold.
+const REFINE_UNMASKED_PER_FRAME: usize = 1024;
 
 /// The gap, in march steps, left between the space `weights.static_free_space` clears and the
 /// combined render's visible surface, so that the surface's own still matter is spared.
@@ -189,6 +194,7 @@ impl NsffTrainer {
             error_map,
             profiling_warm_up: false,
             blend_readout: Cell::new(None),
+            mask_refined: None,
         })
     }
 
@@ -234,6 +240,15 @@ impl NsffTrainer {
         if state.n_static_rays > 0 {
             self.n_static_rays = state.n_static_rays;
         }
+        if state.masks_refined {
+            let v = &self.video;
+            let pixels = v.motion_masks.first().map_or(0, Vec::len);
+            let removed =
+                crate::mask_refine::unpack(s.require("mask_refined", path)?, v.frames.len(), pixels)
+                    .map_err(|m| ModelError::checkpoint(path, m))?;
+            self.video.unmask(&removed);
+            self.mask_refined = Some(removed);
+        }
         Ok(())
     }
 
@@ -247,9 +262,13 @@ impl NsffTrainer {
             moving_fraction: self.video.moving_fraction,
             n_rays: self.n_rays,
             n_static_rays: self.n_static_rays,
+            masks_refined: self.mask_refined.is_some(),
         };
         let mut s = Sections::default();
         s.push_json("state", &state, &path)?;
+        if let Some(removed) = &self.mask_refined {
+            s.push("mask_refined", crate::mask_refine::pack(removed));
+        }
         write_model(&self.model, &mut s, &path)?;
         let optim = self
             .optim
@@ -269,6 +288,9 @@ impl NsffTrainer {
             .wrapping_add(self.step as u64);
         let mut rng = StdRng::seed_from_u64(seed);
         let warm_up = self.in_static_warm_up();
+        if !warm_up && self.mask_refined.is_none() && self.refines_masks() {
+            span("nsff_mask_refine", || self.refine_masks())?;
+        }
         if !warm_up && self.profiling_warm_up && nerf_core::profile::enabled() {
             // The loop prints the rest at the end: the two phases' steps cost differently.
             eprint!(
@@ -440,6 +462,77 @@ impl NsffTrainer {
             times.push(0.5 * (lo + hi));
         }
         in_bin
+    }
+
+    /// Whether the masks are refined when the static warm-up ends (`mask_refine_quantile`): a
+    /// video with a dynamic field, a warm-up that has run, and masks to refine.
+    fn refines_masks(&self) -> bool {
+        self.cfg.mask_refine_quantile > 0.0
+            && self.has_dynamic()
+            && self.cfg.static_warm_up > 0.0
+            && self.step > 0
+            && self.video.motion_masks.iter().flatten().any(|&m| m)
+    }
+
+    /// Takes out of the motion masks the pixels the static field explains ([`crate::mask_refine`]).
+    fn refine_masks(&mut self) -> Result<()> {
+        self.model.settings.static_only = true;
+        let errors = self.static_errors();
+        self.model.settings.static_only = false;
+        let errors = errors?;
+        let v = &self.video;
+        let unmasked = (errors.iter().zip(&v.motion_masks))
+            .flat_map(|(e, m)| e.iter().zip(m).filter(|(_, m)| !**m).map(|(e, _)| *e));
+        let q = self.cfg.mask_refine_quantile;
+        let threshold = crate::mask_refine::quantile(unmasked, q).unwrap_or(f32::NEG_INFINITY);
+        let removed: Vec<Vec<bool>> = (errors.iter().zip(&v.motion_masks).zip(&v.frames))
+            .map(|((e, m), &f)| {
+                let width = v.dataset.views[f].image.width as usize;
+                crate::mask_refine::explained(m, e, width, threshold)
+            })
+            .collect();
+        let before = v.mask_fraction();
+        self.video.unmask(&removed);
+        self.note = Some(format!(
+            "motion masks refined by the static field: {:.1} % → {:.1} % of the pixels (a masked pixel leaves where its squared error ≤ {threshold:.2e}, the unmasked pixels' {q} quantile)",
+            100.0 * before,
+            100.0 * self.video.mask_fraction(),
+        ));
+        self.mask_refined = Some(removed);
+        Ok(())
+    }
+
+    /// Per frame (`[H*W]`), the squared colour error (mean over channels) of the model's render
+    /// at the frame's masked pixels and at up to [`REFINE_UNMASKED_PER_FRAME`] random unmasked
+    /// ones; `NaN` elsewhere.
+    fn static_errors(&self) -> Result<Vec<Vec<f32>>> {
+        let v = &self.video;
+        let mut rng = StdRng::seed_from_u64(self.cfg.base.seed ^ self.step as u64);
+        let mut errors = Vec::with_capacity(v.frames.len());
+        for (k, &f) in v.frames.iter().enumerate() {
+            let view = &v.dataset.views[f];
+            let mask = &v.motion_masks[k];
+            let mut pixels: Vec<u32> = (0..mask.len() as u32).filter(|&p| !mask[p as usize]).collect();
+            pixels.shuffle(&mut rng);
+            pixels.truncate(REFINE_UNMASKED_PER_FRAME);
+            pixels.extend((0..mask.len() as u32).filter(|&p| mask[p as usize]));
+            let rays = v.dataset.rays_for(&view.camera, pixels.iter().copied());
+            let out = crate::eval::render_rays_direct(
+                &self.model,
+                &rays,
+                v.times[k],
+                v.dataset.background,
+                &self.device,
+            )?;
+            let target = pixel_colours(view, &pixels);
+            let mut error = vec![f32::NAN; mask.len()];
+            for (i, &p) in pixels.iter().enumerate() {
+                let d = (0..3).map(|c| (out.rgb[3 * i + c] - target[3 * i + c]).powi(2));
+                error[p as usize] = d.sum::<f32>() / 3.0;
+            }
+            errors.push(error);
+        }
+        Ok(errors)
     }
 
     /// Whether this step trains the static field alone (`static_warm_up`).
@@ -1072,12 +1165,7 @@ impl NsffTrainer {
         warm_up: bool,
         rng: &mut StdRng,
     ) -> Result<Option<(Tensor<1>, f64, usize, usize)>> {
-        let masked_static = self.cfg.masked_static;
-        let masked_share = if warm_up {
-            self.warm_up_masked_share().max(masked_static)
-        } else {
-            masked_static
-        };
+        let (masked_static, masked_share) = self.static_batch_masked(warm_up);
         let pixels = self.still_pixels(self.n_static_rays.max(1), masked_share, rng);
         let (rays, mut target, alpha) = self.pixel_rays(&pixels);
         // The masked rays in `pixel_rays`' order, for `masked_static`'s robust weights.
@@ -1097,6 +1185,21 @@ impl NsffTrainer {
             self.static_photometric(&rays, target, &background, masked, rng)
         })?;
         Ok(still.map(|(loss, m, n)| (loss, m, rays.len(), n)))
+    }
+
+    /// The static batch's `masked_static` now (0 after the warm-up with
+    /// `masked_static_warm_up_only`), and the share of the masked pixels it draws.
+    fn static_batch_masked(&self, warm_up: bool) -> (f32, f32) {
+        let masked_static = if warm_up || !self.cfg.masked_static_warm_up_only {
+            self.cfg.masked_static
+        } else {
+            0.0
+        };
+        if warm_up {
+            (masked_static, self.warm_up_masked_share().max(masked_static))
+        } else {
+            (masked_static, masked_static)
+        }
     }
 
     /// The share of masked pixels the static warm-up draws at this step: `warm_up_masked` at its
@@ -2119,6 +2222,13 @@ mod tests {
             let got = t.warm_up_masked_share();
             assert!((got - want).abs() < 1e-6, "step {step}: share {got}, want {want}");
         }
+        // `masked_static` all run long, or in the warm-up only.
+        t.cfg.masked_static = 0.5;
+        assert_eq!(t.static_batch_masked(false), (0.5, 0.5));
+        t.cfg.masked_static_warm_up_only = true;
+        assert_eq!(t.static_batch_masked(false), (0.0, 0.0));
+        t.step = 0;
+        assert_eq!(t.static_batch_masked(true), (0.5, 0.8));
         let f = t.video.mask_fraction() as f64;
         assert!(
             f > 0.02 && f < 0.98,
@@ -2533,6 +2643,55 @@ mod tests {
         t.cfg.lr_decay_after_warm_up = false;
         let old = lr0 * (lr1 / lr0).powf(0.75);
         assert!((t.lr() - old).abs() < 1e-9 * lr0, "lr {} vs {old}", t.lr());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// `mask_refine_quantile`: the masks stay through the warm-up, lose only masked pixels when
+    /// the space-time phase starts, and a resumed run takes the same pixels out of the
+    /// recomputed masks.
+    #[test]
+    fn masks_refined_at_the_warm_up_s_end_survive_a_resume() {
+        let (dir, mut cfg, video) = dynamic_video("nsff-mask-refine");
+        assert_eq!(cfg.mask_refine_quantile, 0.0, "opt-in");
+        cfg.base.steps = 4;
+        cfg.base.time_budget = None;
+        cfg.static_warm_up = 0.5;
+        cfg.mask_refine_quantile = 1.0;
+        assert!(cfg.validate().is_ok());
+        let run_dir = dir.join("run");
+        let flow_masks = video.motion_masks.clone();
+        let masked = |m: &[Vec<bool>]| m.iter().flatten().filter(|&&x| x).count();
+        assert!(masked(&flow_masks) > 0, "the moving cube is masked");
+        let mut t = NsffTrainer::new(cfg, video, &run_dir).unwrap();
+        for _ in 0..2 {
+            t.train_step().unwrap().expect("a finite warm-up step");
+        }
+        assert!(t.mask_refined.is_none() && t.video.motion_masks == flow_masks);
+        t.train_step().unwrap().expect("a finite space-time step");
+        let removed = t.mask_refined.clone().expect("refined when the warm-up ended");
+        let mut left = 0;
+        for ((before, after), gone) in flow_masks.iter().zip(&t.video.motion_masks).zip(&removed) {
+            for p in 0..before.len() {
+                assert!(!gone[p] || before[p], "pixel {p} left a mask it was not in");
+                assert_eq!(after[p], before[p] && !gone[p]);
+                left += usize::from(after[p]);
+            }
+        }
+        assert!(left < masked(&flow_masks), "nothing left the masks");
+        for (moving, mask) in t.video.moving_pixels.iter().zip(&t.video.motion_masks) {
+            assert!(
+                moving.iter().all(|&p| mask[p as usize]),
+                "hard mining keeps a refined pixel"
+            );
+        }
+        t.save().unwrap();
+        let resumed = NsffTrainer::resume(&run_dir, |_| Ok(()), true).unwrap();
+        assert_eq!(resumed.video.motion_masks, t.video.motion_masks);
+        assert_eq!(resumed.mask_refined, Some(removed));
+        // Refined once: the next step leaves the masks alone.
+        let refined = t.video.motion_masks.clone();
+        t.train_step().unwrap().expect("a finite space-time step");
+        assert_eq!(t.video.motion_masks, refined);
         let _ = std::fs::remove_dir_all(&dir);
     }
 
