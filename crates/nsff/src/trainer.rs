@@ -512,10 +512,11 @@ impl NsffTrainer {
         for (k, &f) in v.frames.iter().enumerate() {
             let view = &v.dataset.views[f];
             let mask = &v.motion_masks[k];
-            let mut pixels: Vec<u32> = (0..mask.len() as u32).filter(|&p| !mask[p as usize]).collect();
+            let (mut pixels, masked): (Vec<u32>, Vec<u32>) =
+                (0..mask.len() as u32).partition(|&p| !mask[p as usize]);
             pixels.shuffle(&mut rng);
             pixels.truncate(REFINE_UNMASKED_PER_FRAME);
-            pixels.extend((0..mask.len() as u32).filter(|&p| mask[p as usize]));
+            pixels.extend(masked);
             let rays = v.dataset.rays_for(&view.camera, pixels.iter().copied());
             let out = crate::eval::render_rays_direct(
                 &self.model,
