@@ -374,11 +374,22 @@ pub struct NsffConfig {
     /// `masked_static` during the static warm-up only: the static field learns the still matter
     /// the masks hold (a plate whose flow fails) before `mask_refine_quantile` reads its errors,
     /// and the space-time phase draws outside the (refined) masks again. False (the default,
-    /// and what checkpoints from before it read): all run long. Opt-in: with `masked_static` 1
-    /// it gains 0.52 dB off the path on the seven tuning videos at 600 s and loses 0.46 between
-    /// frames, the mean level (BENCHMARKS.md §6, fifty-first session).
+    /// and what checkpoints from before it read): all run long. Opt-in: with `masked_static` 1,
+    /// on the seven tuning videos at 600 s, it gained 0.52 and 0.43 dB off the path in two
+    /// screens and lost 0.46 and 0.29 between frames, the mean +0.03 and +0.07 (BENCHMARKS.md §6,
+    /// fifty-first and fifty-second sessions).
     #[serde(default)]
     pub masked_static_warm_up_only: bool,
+    /// With `masked_static_warm_up_only`, the share of masked pixels the warm-up draws falls
+    /// linearly from `masked_static` to 0 at the warm-up's end (as `warm_up_masked`'s does), so
+    /// its last part trains on unmasked pixels only and unlearns the copy of the movers that
+    /// their small robust weights leave in the static field. False (the default, and what
+    /// checkpoints from before it read): the share holds all through the warm-up. Opt-in: on
+    /// the seven tuning videos at 600 s it lost 0.34 dB on the mean against the share held, off
+    /// the path (−0.30) as well as between frames (−0.37) (BENCHMARKS.md §6, fifty-second
+    /// session): the copy of the movers, if there is one, is not what costs between frames.
+    #[serde(default)]
+    pub masked_static_falls: bool,
     /// τ of `masked_static`'s weight, in units of the unmasked rays' mean squared error.
     #[serde(default = "default_masked_static_scale")]
     pub masked_static_scale: f32,
@@ -740,6 +751,7 @@ impl NsffConfig {
             masked_static: 0.0,
             mask_refine_quantile: 0.0,
             masked_static_warm_up_only: false,
+            masked_static_falls: false,
             masked_static_scale: default_masked_static_scale(),
             warm_up_random_background: false,
             static_random_background: false,
@@ -890,6 +902,13 @@ impl NsffConfig {
                 "masked_static must be in [0, 1], got {}",
                 self.masked_static
             ));
+        }
+        if self.masked_static_falls && !(self.masked_static > 0.0 && self.masked_static_warm_up_only) {
+            return Err(
+                "masked_static_falls needs masked_static > 0 and masked_static_warm_up_only \
+                        (it lowers the warm-up's share of masked_static's rays)"
+                    .to_string(),
+            );
         }
         // Both act on the static batch's masked rays, which only `masked_static` draws: alone
         // they would change nothing without saying so.
@@ -1179,6 +1198,22 @@ mod tests {
         }
         cfg.warp_chain_weight = 0.5;
         assert!(cfg.validate().is_ok());
+    }
+
+    /// `masked_static_falls` lowers the warm-up share of `masked_static`'s rays: without both
+    /// it would change nothing, so it is refused.
+    #[test]
+    fn masked_static_falls_needs_masked_static_in_the_warm_up_only() {
+        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
+        cfg.masked_static_falls = true;
+        for (masked, warm_up_only, ok) in [(0.0, true, false), (1.0, false, false), (1.0, true, true)] {
+            (cfg.masked_static, cfg.masked_static_warm_up_only) = (masked, warm_up_only);
+            let got = cfg.validate();
+            assert_eq!(got.is_ok(), ok, "{masked} {warm_up_only}: {got:?}");
+            if let Err(e) = got {
+                assert!(e.contains("masked_static_falls"), "{e}");
+            }
+        }
     }
 
     /// A jumping camera's finest time cells span two frames: 150 frames (149 gaps, as

@@ -1189,7 +1189,8 @@ impl NsffTrainer {
     }
 
     /// The static batch's `masked_static` now (0 after the warm-up with
-    /// `masked_static_warm_up_only`), and the share of the masked pixels it draws.
+    /// `masked_static_warm_up_only`), and the share of the masked pixels it draws (falling
+    /// through the warm-up with `masked_static_falls`).
     fn static_batch_masked(&self, warm_up: bool) -> (f32, f32) {
         let masked_static = if warm_up || !self.cfg.masked_static_warm_up_only {
             self.cfg.masked_static
@@ -1197,7 +1198,12 @@ impl NsffTrainer {
             0.0
         };
         if warm_up {
-            (masked_static, self.warm_up_masked_share().max(masked_static))
+            let share = if self.cfg.masked_static_falls {
+                masked_static * self.warm_up_left()
+            } else {
+                masked_static
+            };
+            (masked_static, self.warm_up_masked_share().max(share))
         } else {
             (masked_static, masked_static)
         }
@@ -1207,9 +1213,14 @@ impl NsffTrainer {
     /// start, falling linearly to 0 at its end, so that its last part trains on unmasked pixels
     /// only and unlearns what the movers left in the static field.
     fn warm_up_masked_share(&self) -> f32 {
+        self.cfg.warm_up_masked * self.warm_up_left()
+    }
+
+    /// The share of the static warm-up still to run: 1 at its start, 0 from its end on.
+    fn warm_up_left(&self) -> f32 {
         let warm_up = self.cfg.static_warm_up.max(1e-9);
         let left = 1.0 - self.cfg.base.progress(self.step, self.elapsed) / warm_up;
-        self.cfg.warm_up_masked * left.clamp(0.0, 1.0) as f32
+        left.clamp(0.0, 1.0) as f32
     }
 
     /// What the static batch composites over: with `static_random_background`, or during the
@@ -2230,6 +2241,17 @@ mod tests {
         assert_eq!(t.static_batch_masked(false), (0.0, 0.0));
         t.step = 0;
         assert_eq!(t.static_batch_masked(true), (0.5, 0.8));
+        // With `masked_static_falls` its share falls as `warm_up_masked`'s does: at a quarter
+        // of the way through the warm-up, 0.5 × (1 − 1/4) under `warm_up_masked`'s 0.8 × 3/4.
+        t.cfg.masked_static_falls = true;
+        t.cfg.warm_up_masked = 0.0;
+        for (step, want) in [(0, 0.5), (25, 0.25), (40, 0.1), (50, 0.0)] {
+            t.step = step;
+            let (m, got) = t.static_batch_masked(true);
+            assert_eq!(m, 0.5, "the robust weights stay on while masked rays are drawn");
+            assert!((got - want).abs() < 1e-6, "step {step}: share {got}, want {want}");
+        }
+        (t.cfg.masked_static_falls, t.cfg.warm_up_masked, t.step) = (false, 0.8, 0);
         let f = t.video.mask_fraction() as f64;
         assert!(
             f > 0.02 && f < 0.98,
