@@ -1192,21 +1192,24 @@ impl NsffTrainer {
     /// `masked_static_warm_up_only`), and the share of the masked pixels it draws (falling
     /// through the warm-up with `masked_static_falls`).
     fn static_batch_masked(&self, warm_up: bool) -> (f32, f32) {
-        let masked_static = if warm_up || !self.cfg.masked_static_warm_up_only {
-            self.cfg.masked_static
-        } else {
-            0.0
-        };
-        if warm_up {
-            let share = if self.cfg.masked_static_falls {
-                masked_static * self.warm_up_left()
+        let masked_static = self.cfg.masked_static;
+        if !warm_up {
+            let after = if self.cfg.masked_static_warm_up_only {
+                0.0
             } else {
                 masked_static
             };
-            (masked_static, self.warm_up_masked_share().max(share))
-        } else {
-            (masked_static, masked_static)
+            return (after, after);
         }
+        let falls = if self.cfg.masked_static_falls {
+            self.warm_up_left()
+        } else {
+            1.0
+        };
+        (
+            masked_static,
+            self.warm_up_masked_share().max(masked_static * falls),
+        )
     }
 
     /// The share of masked pixels the static warm-up draws at this step: `warm_up_masked` at its
