@@ -14,6 +14,7 @@ pub mod geometry;
 pub mod losses;
 pub mod mask_refine;
 pub mod model;
+pub mod motion_hull;
 pub mod render;
 pub mod trainer;
 pub mod video;
