@@ -457,17 +457,6 @@ pub struct NsffConfig {
     /// better and keeps it open on the movers.
     #[serde(default = "default_moving_dynamic_until")]
     pub moving_dynamic_until: f64,
-    /// After `moving_dynamic_until`, whenever the blend readout on the rays inside the motion
-    /// masks (the mean of each ray's largest blend, read every 50 space-time steps) is below
-    /// this, `weights.moving_dynamic` applies again, undecayed, on every masked ray, not only
-    /// where the dynamic field already fits better: a blend that shut in the first steps has no
-    /// such rays left, so it never reopens and the static field draws the movers as ghosts
-    /// (BENCHMARKS.md §6, fifty-second and fifty-third sessions). 0: never.
-    #[serde(default)]
-    pub reopen_blend_below: f32,
-    /// Share of the space-time phase during which the blend takes no gradient (experiment).
-    #[serde(default)]
-    pub blend_hold: f64,
     /// Random points per step for the dynamic sparsity term (`weights.sparsity`): 1024 for a
     /// video, 512 for a jumping camera.
     #[serde(default = "default_sparsity_points")]
@@ -779,8 +768,6 @@ impl NsffConfig {
             warm_up_exit_restart: false,
             warm_up_static_occupancy: true,
             moving_dynamic_until: default_moving_dynamic_until(),
-            reopen_blend_below: 0.0,
-            blend_hold: 0.0,
             occupancy_time_bins: default_occupancy_time_bins(),
             frames_per_batch: default_frames_per_batch(),
             warp_neighbours: VIDEO_WARP_NEIGHBOURS,
@@ -914,12 +901,6 @@ impl NsffConfig {
             return Err(format!(
                 "masked_static must be in [0, 1], got {}",
                 self.masked_static
-            ));
-        }
-        if !(0.0..1.0).contains(&self.reopen_blend_below) {
-            return Err(format!(
-                "reopen_blend_below must be in [0, 1), got {}",
-                self.reopen_blend_below
             ));
         }
         if self.masked_static_falls && !(self.masked_static > 0.0 && self.masked_static_warm_up_only) {
@@ -1231,25 +1212,6 @@ mod tests {
             assert_eq!(got.is_ok(), ok, "{masked} {warm_up_only}: {got:?}");
             if let Err(e) = got {
                 assert!(e.contains("masked_static_falls"), "{e}");
-            }
-        }
-    }
-
-    #[test]
-    fn reopen_blend_below_is_a_blend_level() {
-        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
-        for (level, ok) in [
-            (0.0, true),
-            (0.1, true),
-            (1.0, false),
-            (-0.1, false),
-            (f32::NAN, false),
-        ] {
-            cfg.reopen_blend_below = level;
-            let got = cfg.validate();
-            assert_eq!(got.is_ok(), ok, "{level}: {got:?}");
-            if let Err(e) = got {
-                assert!(e.contains("reopen_blend_below"), "{e}");
             }
         }
     }

@@ -14,7 +14,6 @@ pub mod geometry;
 pub mod losses;
 pub mod mask_refine;
 pub mod model;
-pub mod motion_hull;
 pub mod render;
 pub mod trainer;
 pub mod video;

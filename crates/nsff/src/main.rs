@@ -53,14 +53,6 @@ enum Command {
         /// static or the dynamic field.
         #[arg(long)]
         static_only: bool,
-        /// Let the dynamic field draw only where the training camera next to each render's time
-        /// saw motion (its motion mask, projected); elsewhere the static field renders alone.
-        #[arg(long)]
-        motion_hull: bool,
-        /// With --motion-hull: cut the hull this far (scene units) behind each training
-        /// frame's rendered surface, which the frame never saw.
-        #[arg(long)]
-        hull_margin: Option<f32>,
     },
     /// Render a run: the cameras of a D-NeRF transforms file, or a path (bullet time, time-lapse, space-time).
     Render(RenderArgs),
@@ -157,21 +149,12 @@ fn run(cli: Cli) -> Result<()> {
             time_interp,
             render_step_scale,
             static_only,
-            motion_hull,
-            hull_margin,
         } => {
             let mut t = open_run(&run_dir, time_interp, render_step_scale)?;
             if static_only {
                 t.model.settings.static_only = true;
             }
-            if motion_hull {
-                attach_motion_hull(&mut t, hull_margin)?;
-            }
-            let name = match (static_only, motion_hull) {
-                (true, _) => "eval_static",
-                (false, true) => "eval_hull",
-                (false, false) => "eval",
-            };
+            let name = if static_only { "eval_static" } else { "eval" };
             let r = write_eval(&t, save_images, name)?;
             println!("mean_psnr {:.4}", r.mean_psnr);
             Ok(())
@@ -360,37 +343,6 @@ fn open_run(run_dir: &Path, time_interp: Option<TimeInterp>, render_step_scale: 
         run_dir: run_dir.to_path_buf(),
         device: t.device,
     })
-}
-
-/// Loads the run's video (its flows from the run's cache) and hands the renders its motion hull.
-/// With `margin`, the hull stops that far behind each frame's surface as the model renders it.
-fn attach_motion_hull(t: &mut Run, margin: Option<f32>) -> Result<()> {
-    let video = nsff::trainer::load_video(&t.cfg, &t.run_dir, true)?;
-    let cameras: Vec<Camera> = video
-        .frames
-        .iter()
-        .map(|&v| video.dataset.views[v].camera)
-        .collect();
-    let mismatch = || ModelError::usage(&t.run_dir, "the video's motion masks do not match its frames");
-    let mut hull =
-        nsff::motion_hull::MotionHull::new(cameras.clone(), video.motion_masks, video.times.clone())
-            .ok_or_else(mismatch)?;
-    if let Some(margin) = margin {
-        let mut depths = Vec::with_capacity(cameras.len());
-        for (cam, &time) in cameras.iter().zip(&video.times) {
-            let r = render_at(&t.model, &t.dataset, cam, time, &t.device)?;
-            // Expected depth over opacity: the surface; none where the ray stays clear.
-            let surface = r.depth.iter().zip(&r.opacity);
-            depths.push(
-                surface
-                    .map(|(&d, &o)| if o > 0.5 { d / o } else { f32::INFINITY })
-                    .collect(),
-            );
-        }
-        hull = hull.behind_surface_cut(depths, margin).ok_or_else(mismatch)?;
-    }
-    t.model.settings.motion_hull = Some(std::sync::Arc::new(hull));
-    Ok(())
 }
 
 /// Scores the held-out views into RUN_DIR/`name`.json (and images into RUN_DIR/`name`/).

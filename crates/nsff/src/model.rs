@@ -63,9 +63,6 @@ pub struct RenderSettings {
     /// Renders the static field alone, σ_static at full weight with the dynamic field skipped
     /// (a diagnosis: `nsff eval --static-only`); the combined model scales σ_static by 1 − b.
     pub static_only: bool,
-    /// Renders the dynamic field only inside the motion hull (`nsff eval --motion-hull`): the
-    /// space the training camera next to the render's time saw move.
-    pub motion_hull: Option<std::sync::Arc<crate::motion_hull::MotionHull>>,
 }
 
 impl RenderSettings {
@@ -85,7 +82,6 @@ impl RenderSettings {
             blend_skip: cfg.blend_skip,
             time_interp: cfg.time_interp,
             static_only: false,
-            motion_hull: None,
         }
     }
 }

@@ -181,13 +181,6 @@ pub fn render_direct(
     if dynamic.is_none() {
         blend.fill(0.0);
     }
-    if let Some(hull) = &settings.motion_hull {
-        for (b, x) in blend.iter_mut().zip(pos.chunks_exact(3)) {
-            if !hull.contains([x[0], x[1], x[2]], time) {
-                *b = 0.0;
-            }
-        }
-    }
     let mut sigma_dy = vec![0.0f32; s_n];
     let mut rgb_dy = vec![0.0f32; 3 * s_n];
     let mut flow_mag = vec![0.0f32; s_n];

@@ -72,52 +72,6 @@ const FRONT_MARGIN_STEPS: f32 = 4.0;
 struct BlendReadout {
     moving: f32,
     still: f32,
-    /// Rays inside the motion masks the readout saw (its `moving` means nothing without).
-    moving_rays: usize,
-}
-
-/// How `weights.moving_dynamic` applies on a space-time step.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum MovingShare {
-    Off,
-    /// In its window: on the masked rays where the dynamic-only render fits better.
-    Earned,
-    /// After it, with the blend shut on the movers (`reopen_blend_below`): on every masked ray.
-    Reopen,
-}
-
-/// [`MovingShare`] for a step at `after_warm_up` of the space-time phase, given the weight, the
-/// window `until`, the last blend readout and `reopen_below`.
-fn moving_share_mode(
-    weight: f64,
-    after_warm_up: f64,
-    until: f64,
-    readout: Option<BlendReadout>,
-    reopen_below: f32,
-) -> MovingShare {
-    let shut = readout.is_some_and(|b| b.moving_rays > 0 && b.moving < reopen_below);
-    if weight <= 0.0 {
-        MovingShare::Off
-    } else if after_warm_up < until || shut {
-        MovingShare::Earned
-    } else {
-        MovingShare::Off
-    }
-}
-
-/// Per ray, the weight `weights.moving_dynamic`'s shortfall gets: the motion mask `moving`
-/// (1 inside), kept in [`MovingShare::Earned`] only where the dynamic-only render's error
-/// `dyn_err` is below the combined render's `combined_err`.
-fn moving_share_rays(moving: &[f32], dyn_err: &[f32], combined_err: &[f32], mode: MovingShare) -> Vec<f32> {
-    moving
-        .iter()
-        .zip(dyn_err.iter().zip(combined_err))
-        .map(|(&m, (d, c))| match mode {
-            MovingShare::Off => 0.0,
-            MovingShare::Earned if d >= c => 0.0,
-            _ => m,
-        })
-        .collect()
 }
 
 /// Space-time steps between two blend readouts (each reads the batch's blend back).
@@ -432,17 +386,6 @@ impl NsffTrainer {
         self.cfg.decay(self.step, self.after_warm_up())
     }
 
-    /// How `weights.moving_dynamic` applies on this space-time step.
-    fn moving_share_mode(&self) -> MovingShare {
-        moving_share_mode(
-            self.cfg.weights.moving_dynamic,
-            self.after_warm_up(),
-            self.cfg.moving_dynamic_until,
-            self.blend_readout.get(),
-            self.cfg.reopen_blend_below,
-        )
-    }
-
     /// The learning rate now.
     fn lr(&self) -> f64 {
         self.cfg.base.lr_at(self.lr_progress())
@@ -719,16 +662,7 @@ impl NsffTrainer {
         }
         let (wts, decay) = (&self.cfg.weights, self.decay());
         let t = tensor(sample_times, 1, dev);
-        let mut q = query_space_time(&self.model, dynamic, rays, &samples, t, dev);
-        if self.after_warm_up() < self.cfg.blend_hold {
-            for extras in [&mut q.st.extras, &mut q.dy.extras] {
-                for (name, v) in extras.0.iter_mut() {
-                    if *name == BLEND || *name == GATE {
-                        *v = v.clone().detach();
-                    }
-                }
-            }
-        }
+        let q = query_space_time(&self.model, dynamic, rays, &samples, t, dev);
         let (x, dirs, st, dy) = (&q.x, &q.dirs, &q.st, &q.dy);
         let (b_s, gate) = (st.extras.expect(BLEND), dy.extras.expect(GATE));
         if self.step.is_multiple_of(BLEND_READOUT_EVERY) {
@@ -741,8 +675,7 @@ impl NsffTrainer {
 
         // Combined render, scored over the uniform and error-map rays, not NSFF's hard-mined
         // ones (they would bias the blend).
-        let moving_mode = self.moving_share_mode();
-        let moving_share = moving_mode != MovingShare::Off;
+        let moving_share = wts.moving_dynamic > 0.0 && self.after_warm_up() < self.cfg.moving_dynamic_until;
         let share =
             wts.still_dynamic > 0.0 || wts.dynamic_share > 0.0 || wts.static_claimed > 0.0 || moving_share;
         let combined = render_combined(&self.model, rays, &samples, &q, ds.background, share, dev);
@@ -860,23 +793,21 @@ impl NsffTrainer {
         };
         loss = loss + dyn_photo * wts.dynamic_photo;
         if moving_share {
-            // Open the blend on the movers (where the dynamic field already fits better, unless
-            // reopening a shut one), shut it on the still rays.
+            // Open the blend where the dynamic field already fits the mover better, shut it on
+            // the still rays.
             let dyn_err = ray_errors(&dyn_only.rgb, target)?;
-            let masked = &batch.mask_weights(&v.motion_masks, true)[..n_u];
-            let moving = moving_share_rays(masked, &dyn_err, &combined_err, moving_mode);
+            let moving: Vec<f32> = batch.mask_weights(&v.motion_masks, true)[..n_u]
+                .iter()
+                .zip(dyn_err.iter().zip(&combined_err))
+                .map(|(&m, (d, c))| if d < c { m } else { 0.0 })
+                .collect();
             let mut still = batch.mask_weights(&v.motion_masks, false);
             still.truncate(n_u);
             let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
             let short =
                 losses::moving_dynamic_share(share.clone(), moving, crate::config::MOVING_SHARE_FLOOR);
             let held = short + losses::still_dynamic_share(share, still);
-            let scale = if moving_mode == MovingShare::Reopen {
-                1.0
-            } else {
-                decay
-            };
-            loss = loss + held * (wts.moving_dynamic * scale);
+            loss = loss + held * (wts.moving_dynamic * decay);
         }
         // Monocular disparity, up to an unknown scale and shift per frame: one frame's rays only.
         if let (Some(disp), true, 1) = (&v.disparity[k], wts.depth > 0.0, batch.groups.len()) {
@@ -1575,7 +1506,6 @@ fn blend_readout(blend: &[f32], offsets: &[u32], moving: &[bool]) -> BlendReadou
     BlendReadout {
         moving: mean(1),
         still: mean(0),
-        moving_rays: count[1],
     }
 }
 
@@ -1661,11 +1591,7 @@ impl nerf::train_loop::Trainable for NsffTrainer {
     }
     fn status(&self) -> String {
         let blend = self.blend_readout.get().map_or(String::new(), |b| {
-            let reopening = match self.moving_share_mode() {
-                MovingShare::Reopen => " (reopening)",
-                _ => "",
-            };
-            format!(", blend {:.3} moving / {:.3} still{reopening}", b.moving, b.still)
+            format!(", blend {:.3} moving / {:.3} still", b.moving, b.still)
         });
         let grid = self
             .model
@@ -1701,42 +1627,8 @@ mod tests {
         let b = blend_readout(&blend, &offsets, &[true, false, true, false]);
         assert!((b.moving - (0.7 + 0.0) / 2.0).abs() < 1e-6, "{b:?}");
         assert!((b.still - (0.2 + 0.5) / 2.0).abs() < 1e-6, "{b:?}");
-        assert_eq!(b.moving_rays, 2);
         let none = blend_readout(&blend[..2], &offsets[..2], &[true]);
         assert_eq!(none.still, 0.0);
-    }
-
-    #[test]
-    fn the_moving_share_reopens_a_shut_blend_after_its_window_only() {
-        let read = |moving, moving_rays| {
-            Some(BlendReadout {
-                moving,
-                still: 0.0,
-                moving_rays,
-            })
-        };
-        let mode = |w, at, r| moving_share_mode(w, at, 0.2, r, 0.1);
-        assert_eq!(mode(0.01, 0.1, read(0.0, 10)), MovingShare::Earned);
-        assert_eq!(mode(0.01, 0.5, read(0.05, 10)), MovingShare::Reopen);
-        assert_eq!(mode(0.01, 0.5, read(0.1, 10)), MovingShare::Off);
-        // No masked ray read, no readout yet, no weight, or the guard off: nothing to reopen.
-        assert_eq!(mode(0.01, 0.5, read(0.0, 0)), MovingShare::Off);
-        assert_eq!(mode(0.01, 0.5, None), MovingShare::Off);
-        assert_eq!(mode(0.0, 0.1, read(0.0, 10)), MovingShare::Off);
-        assert_eq!(
-            moving_share_mode(0.01, 0.5, 0.2, read(0.0, 10), 0.0),
-            MovingShare::Off
-        );
-    }
-
-    #[test]
-    fn reopening_asks_every_masked_ray_where_the_window_asks_the_earned_ones() {
-        let masked = [1.0, 1.0, 0.0, 1.0];
-        let (dyn_err, combined_err) = ([0.1, 0.5, 0.1, 0.2], [0.2, 0.4, 0.3, 0.2]);
-        let rays = |mode| moving_share_rays(&masked, &dyn_err, &combined_err, mode);
-        assert_eq!(rays(MovingShare::Earned), vec![1.0, 0.0, 0.0, 0.0]);
-        assert_eq!(rays(MovingShare::Reopen), vec![1.0, 1.0, 0.0, 1.0]);
-        assert_eq!(rays(MovingShare::Off), vec![0.0; 4]);
     }
 
     #[test]
