@@ -54,6 +54,10 @@ pub struct NsffTrainer {
     profiling_warm_up: bool,
     /// The blend on the last sampled space-time batch's rays (the status line's readout).
     blend_readout: Cell<Option<BlendReadout>>,
+    /// While `weights.moving_dynamic` applies: the share of the last read batch's masked rays
+    /// the dynamic-only render fits better than the combined one: the rays it opens the blend
+    /// on (the status line's readout).
+    earned_readout: Cell<Option<f32>>,
     /// Per frame, the pixels `mask_refine_quantile` took out of the motion masks, once done.
     mask_refined: Option<Vec<Vec<bool>>>,
 }
@@ -194,6 +198,7 @@ impl NsffTrainer {
             error_map,
             profiling_warm_up: false,
             blend_readout: Cell::new(None),
+            earned_readout: Cell::new(None),
             mask_refined: None,
         })
     }
@@ -676,6 +681,9 @@ impl NsffTrainer {
         // Combined render, scored over the uniform and error-map rays, not NSFF's hard-mined
         // ones (they would bias the blend).
         let moving_share = wts.moving_dynamic > 0.0 && self.after_warm_up() < self.cfg.moving_dynamic_until;
+        if !moving_share {
+            self.earned_readout.set(None);
+        }
         let share =
             wts.still_dynamic > 0.0 || wts.dynamic_share > 0.0 || wts.static_claimed > 0.0 || moving_share;
         let combined = render_combined(&self.model, rays, &samples, &q, ds.background, share, dev);
@@ -801,6 +809,10 @@ impl NsffTrainer {
                 .zip(dyn_err.iter().zip(&combined_err))
                 .map(|(&m, (d, c))| if d < c { m } else { 0.0 })
                 .collect();
+            if self.step.is_multiple_of(BLEND_READOUT_EVERY) {
+                let masked = &batch.mask_weights(&v.motion_masks, true)[..n_u];
+                self.earned_readout.set(earned_share(&moving, masked));
+            }
             let mut still = batch.mask_weights(&v.motion_masks, false);
             still.truncate(n_u);
             let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
@@ -1509,6 +1521,13 @@ fn blend_readout(blend: &[f32], offsets: &[u32], moving: &[bool]) -> BlendReadou
     }
 }
 
+/// Share of the masked rays (`masked`, 1 inside) that `earned` keeps (1 where the dynamic-only
+/// render fits better); `None` without masked rays.
+fn earned_share(earned: &[f32], masked: &[f32]) -> Option<f32> {
+    let n = masked.iter().sum::<f32>();
+    (n > 0.0).then(|| earned.iter().sum::<f32>() / n)
+}
+
 /// Squared colour error per ray of `rgb` `[R, 3]` against `target` `[R, 3]`, detached and
 /// read back (R values).
 fn ray_errors(rgb: &Tensor<2>, target: &Tensor<2>) -> Result<Vec<f32>> {
@@ -1591,7 +1610,10 @@ impl nerf::train_loop::Trainable for NsffTrainer {
     }
     fn status(&self) -> String {
         let blend = self.blend_readout.get().map_or(String::new(), |b| {
-            format!(", blend {:.3} moving / {:.3} still", b.moving, b.still)
+            let earned = self.earned_readout.get().map_or(String::new(), |e| {
+                format!(" (earned on {:.0}% of the moving)", 100.0 * e)
+            });
+            format!(", blend {:.3} moving / {:.3} still{earned}", b.moving, b.still)
         });
         let grid = self
             .model
@@ -1629,6 +1651,16 @@ mod tests {
         assert!((b.still - (0.2 + 0.5) / 2.0).abs() < 1e-6, "{b:?}");
         let none = blend_readout(&blend[..2], &offsets[..2], &[true]);
         assert_eq!(none.still, 0.0);
+    }
+
+    #[test]
+    fn the_earned_share_counts_the_kept_rays_among_the_masked() {
+        assert_eq!(
+            earned_share(&[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0, 0.0, 1.0]),
+            Some(2.0 / 3.0)
+        );
+        assert_eq!(earned_share(&[0.0; 3], &[1.0, 0.0, 1.0]), Some(0.0));
+        assert_eq!(earned_share(&[0.0; 2], &[0.0; 2]), None);
     }
 
     #[test]
