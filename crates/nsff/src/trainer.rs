@@ -804,13 +804,13 @@ impl NsffTrainer {
             // Open the blend where the dynamic field already fits the mover better, shut it on
             // the still rays.
             let dyn_err = ray_errors(&dyn_only.rgb, target)?;
-            let moving: Vec<f32> = batch.mask_weights(&v.motion_masks, true)[..n_u]
+            let masked = &batch.mask_weights(&v.motion_masks, true)[..n_u];
+            let moving: Vec<f32> = masked
                 .iter()
                 .zip(dyn_err.iter().zip(&combined_err))
                 .map(|(&m, (d, c))| if d < c { m } else { 0.0 })
                 .collect();
             if self.step.is_multiple_of(BLEND_READOUT_EVERY) {
-                let masked = &batch.mask_weights(&v.motion_masks, true)[..n_u];
                 self.earned_readout.set(earned_share(&moving, masked));
             }
             let mut still = batch.mask_weights(&v.motion_masks, false);
@@ -2276,8 +2276,8 @@ mod tests {
         assert_eq!(t.static_batch_masked(false), (0.0, 0.0));
         t.step = 0;
         assert_eq!(t.static_batch_masked(true), (0.5, 0.8));
-        // With `masked_static_falls` its share falls as `warm_up_masked`'s does: at a quarter
-        // of the way through the warm-up, 0.5 × (1 − 1/4) under `warm_up_masked`'s 0.8 × 3/4.
+        // With `masked_static_falls` (and `warm_up_masked` off) its share falls as
+        // `warm_up_masked`'s does: linearly from 0.5 to 0 over the fixture's 50-step warm-up.
         t.cfg.masked_static_falls = true;
         t.cfg.warm_up_masked = 0.0;
         for (step, want) in [(0, 0.5), (25, 0.25), (40, 0.1), (50, 0.0)] {
