@@ -536,6 +536,14 @@ pub struct NsffConfig {
     /// the movers' geometry. 0: all detached (checkpoints from before it read 0).
     #[serde(default)]
     pub flow_weights_share: f32,
+    /// The blend b = b_s(x)·g(x, t) with the dynamic field's time gate g; off, b = b_s(x) as in
+    /// NSFF (the gate's output is held at 1).
+    #[serde(default = "default_time_gate")]
+    pub time_gate: bool,
+}
+
+fn default_time_gate() -> bool {
+    true
 }
 
 fn default_flow_log2_table() -> u32 {
@@ -779,6 +787,7 @@ impl NsffConfig {
             flow_hidden: default_flow_hidden(),
             flow_detach_weights: false,
             flow_weights_share: 0.0,
+            time_gate: default_time_gate(),
         }
     }
 

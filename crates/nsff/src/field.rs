@@ -99,6 +99,9 @@ pub struct DynamicField {
     pub flow_scale: f32,
     /// The scene flow's own network; without it the flow is the shared head's first six outputs.
     pub flow: Option<FlowNet>,
+    /// Whether the time gate is learnt; without it g ≡ 1 (NSFF's blend b = b_s).
+    #[module(skip)]
+    pub time_gate: bool,
 }
 
 /// Scene flow from its own space-time hash grid and MLP: `[S, 6]` raw flow to the previous and
@@ -173,6 +176,7 @@ impl DynamicField {
             inner,
             flow_scale: cfg.flow_scale,
             flow,
+            time_gate: cfg.time_gate,
         }
     }
 
@@ -209,7 +213,7 @@ impl DynamicField {
         extras.push(FLOW_NEXT, next);
         extras.push(PROB_PREV, prob.clone().slice([0..n, 0..1]));
         extras.push(PROB_NEXT, prob.slice([0..n, 1..2]));
-        extras.push(GATE, sigmoid(raw.slice([0..n, DYNAMIC_EXTRA - 1..DYNAMIC_EXTRA])));
+        extras.push(GATE, gate(raw, self.time_gate));
         extras
     }
 }
@@ -218,7 +222,10 @@ impl Field for DynamicField {
     /// Density with the time gate only (what occupancy and sparsity need; scene flow and
     /// disocclusion come with full queries).
     fn density(&self, positions: Tensor<2>, time: Option<Tensor<2>>) -> Density {
-        self.inner.density(positions, time).map_extras(gate_only)
+        let learnt = self.time_gate;
+        self.inner
+            .density(positions, time)
+            .map_extras(|e| gate_only(e, learnt))
     }
 
     fn query(&self, query: FieldQuery<'_>) -> FieldOutputs {
@@ -239,12 +246,21 @@ impl Field for DynamicField {
     }
 }
 
-/// The time gate g = sigmoid(raw logit) from the raw head `[S, 9]`.
-fn gate_only(raw: Extras) -> Extras {
-    let raw = raw.expect(RAW_EXTRA);
+/// The time gate `[S, 1]` from the raw head `[S, 9]`: g = sigmoid(raw logit), or 1 when it is
+/// not learnt.
+fn gate(raw: Tensor<2>, learnt: bool) -> Tensor<2> {
     let n = raw.dims()[0];
+    if learnt {
+        sigmoid(raw.slice([0..n, DYNAMIC_EXTRA - 1..DYNAMIC_EXTRA]))
+    } else {
+        Tensor::ones([n, 1], &raw.device())
+    }
+}
+
+/// The time gate alone from the raw head's extras.
+fn gate_only(raw: Extras, learnt: bool) -> Extras {
     let mut extras = Extras::default();
-    extras.push(GATE, sigmoid(raw.slice([0..n, DYNAMIC_EXTRA - 1..DYNAMIC_EXTRA])));
+    extras.push(GATE, gate(raw.expect(RAW_EXTRA), learnt));
     extras
 }
 
@@ -304,6 +320,39 @@ mod tests {
                         (u - w).abs() <= 1e-6,
                         "{name}, flow_levels {flow_levels}: {u} vs {w}"
                     );
+                }
+            }
+        }
+    }
+    /// With `time_gate` off the blend is NSFF's b = b_s: the gate reads exactly 1 from full and
+    /// density-only queries, at every time, while a learnt gate starts near sigmoid(4) and
+    /// changes with the head's weights.
+    #[test]
+    fn without_the_time_gate_the_gate_reads_one() {
+        let device = Device::flex();
+        let aabb = [[-1.0; 3], [1.0; 3]];
+        let n = 32;
+        let pos: Vec<f32> = (0..3 * n).map(|i| ((i * 29 % 97) as f32 / 48.0) - 1.0).collect();
+        let t: Vec<f32> = (0..n).map(|i| (i % 5) as f32 / 4.0).collect();
+        let dirs: Vec<f32> = (0..n).flat_map(|_| [0.6, 0.0, 0.8]).collect();
+        for learnt in [true, false] {
+            let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
+            cfg.time_gate = learnt;
+            let field = DynamicField::new(&cfg, aabb, &device);
+            let x = Tensor::<2>::from_data(burn::tensor::TensorData::new(pos.clone(), [n, 3]), &device);
+            let tt = Tensor::<2>::from_data(burn::tensor::TensorData::new(t.clone(), [n, 1]), &device);
+            let full = field.query(FieldQuery::new(x.clone(), &dirs).at_time(Some(tt.clone())));
+            let dens = field.density(x, Some(tt));
+            for g in [full.extras.expect(GATE), dens.extras.expect(GATE)] {
+                let g = read_back(g, "gate").unwrap();
+                assert_eq!(g.len(), n);
+                for v in g {
+                    if learnt {
+                        // sigmoid(4) = 0.982; the head's random weights move it a little.
+                        assert!(v > 0.9 && v < 1.0, "learnt gate {v}");
+                    } else {
+                        assert_eq!(v, 1.0);
+                    }
                 }
             }
         }
