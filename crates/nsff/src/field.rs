@@ -324,9 +324,9 @@ mod tests {
             }
         }
     }
+
     /// With `time_gate` off the blend is NSFF's b = b_s: the gate reads exactly 1 from full and
-    /// density-only queries, at every time, while a learnt gate starts near sigmoid(4) and
-    /// changes with the head's weights.
+    /// density-only queries, at every time, while a learnt gate starts near sigmoid(4) (below 1).
     #[test]
     fn without_the_time_gate_the_gate_reads_one() {
         let device = Device::flex();
