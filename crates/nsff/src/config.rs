@@ -225,6 +225,21 @@ pub enum TimeInterp {
     Direct,
 }
 
+/// How renders read the time gate at times between training frames.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum GateBetween {
+    /// The dynamic field's own gate at that time (its time cells interpolate the two
+    /// neighbouring frames').
+    Field,
+    /// Raised towards the larger of the two neighbouring frames' gates at the same point, fully
+    /// half-way and not at all on a frame: what either frame draws with the dynamic field stays
+    /// drawn between them (the default: on the seven tuning videos' checkpoints +0.13 dB between
+    /// frames, none lower; BENCHMARKS.md §6, fifty-fifth session).
+    #[default]
+    Held,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct NsffConfig {
     /// Shared with the static pipeline: data, preset, budgets, learning rate, static field.
@@ -541,6 +556,10 @@ pub struct NsffConfig {
     /// between frames and lose 0.14 off the path (BENCHMARKS.md §6, fifty-fourth session).
     #[serde(default = "default_time_gate")]
     pub time_gate: bool,
+    /// How renders between frames read the time gate (render-time only; checkpoints from before
+    /// it render with the default).
+    #[serde(default)]
+    pub gate_between: GateBetween,
 }
 
 fn default_time_gate() -> bool {
@@ -789,6 +808,7 @@ impl NsffConfig {
             flow_detach_weights: false,
             flow_weights_share: 0.0,
             time_gate: default_time_gate(),
+            gate_between: GateBetween::default(),
         }
     }
 

@@ -14,7 +14,7 @@ use nerf::export::{
 use nerf::render::FrameWriter;
 use nerf_data::error::DataError;
 use nerf_data::{Camera, Dataset, Image, LoadOptions};
-use nsff::config::{DynamicMode, NsffConfig, TimeInterp, check_render_step_scale};
+use nsff::config::{DynamicMode, GateBetween, NsffConfig, TimeInterp, check_render_step_scale};
 use nsff::eval::{evaluate_with_depth, render_at};
 use nsff::export::SpaceTimeVolume;
 use nsff::model::NsffModel;
@@ -41,13 +41,8 @@ enum Command {
         /// Also write ground truth | render pairs to RUN_DIR/eval/.
         #[arg(long)]
         save_images: bool,
-        /// Renders between frames: splat or direct (default: the run's own setting).
-        #[arg(long, value_enum)]
-        time_interp: Option<TimeInterp>,
-        /// March step of the renders as a fraction of the training step (default: the run's own
-        /// setting, `render_step_scale`; smaller is finer and slower).
-        #[arg(long)]
-        render_step_scale: Option<f32>,
+        #[command(flatten)]
+        render: RenderFlags,
         /// Render with the static field alone (its full density, the dynamic field and the blend
         /// skipped everywhere) and write eval_static.json: tells whether an error comes from the
         /// static or the dynamic field.
@@ -102,6 +97,22 @@ enum PathKind {
     Spacetime,
 }
 
+/// How a trained run renders; a flag left out keeps the run's own setting.
+#[derive(clap::Args, Default)]
+struct RenderFlags {
+    /// Renders between frames: splat or direct.
+    #[arg(long, value_enum)]
+    time_interp: Option<TimeInterp>,
+    /// March step of the renders as a fraction of the training step (`render_step_scale`;
+    /// smaller is finer and slower).
+    #[arg(long)]
+    render_step_scale: Option<f32>,
+    /// How the direct renders between frames read the time gate: held (raised towards the two
+    /// neighbouring frames' larger gate) or field (the field's own gate at that time).
+    #[arg(long, value_enum)]
+    gate_between: Option<GateBetween>,
+}
+
 #[derive(clap::Args)]
 struct RenderArgs {
     run_dir: PathBuf,
@@ -117,13 +128,8 @@ struct RenderArgs {
     frames: usize,
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Renders between frames: direct or splat (default: the run's own setting).
-    #[arg(long, value_enum)]
-    time_interp: Option<TimeInterp>,
-    /// March step of the renders as a fraction of the training step (default: the run's own
-    /// setting, `render_step_scale`; smaller is finer and slower).
-    #[arg(long)]
-    render_step_scale: Option<f32>,
+    #[command(flatten)]
+    render: RenderFlags,
     /// Render with the static field alone (as `eval --static-only`): what the static field
     /// has learnt, e.g. at the training cameras.
     #[arg(long)]
@@ -146,11 +152,10 @@ fn run(cli: Cli) -> Result<()> {
         Command::Eval {
             run_dir,
             save_images,
-            time_interp,
-            render_step_scale,
+            render,
             static_only,
         } => {
-            let mut t = open_run(&run_dir, time_interp, render_step_scale)?;
+            let mut t = open_run(&run_dir, &render)?;
             if static_only {
                 t.model.settings.static_only = true;
             }
@@ -161,7 +166,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Render(args) => render(args),
         Command::View(args) => {
-            let t = open_run(&args.run_dir, None, None)?;
+            let t = open_run(&args.run_dir, &RenderFlags::default())?;
             let title = format!("{} (step {})", args.run_dir.display(), t.step);
             let scene = nerf::viewer::ViewerScene::of(&t.dataset, &title);
             let model = nsff::view::SpaceTimeView {
@@ -172,7 +177,7 @@ fn run(cli: Cli) -> Result<()> {
             nerf::viewer::run(&model, &scene, &args.host, args.port)
         }
         Command::Export(ExportWhat::Mesh { mesh, time }) => {
-            let t = open_run(&mesh.run_dir, None, None)?;
+            let t = open_run(&mesh.run_dir, &RenderFlags::default())?;
             require_bounded(&t.dataset, &mesh.run_dir)?;
             let volume = SpaceTimeVolume {
                 model: &t.model,
@@ -195,7 +200,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Export(ExportWhat::Points(args)) => {
-            let t = open_run(&args.run_dir, None, None)?;
+            let t = open_run(&args.run_dir, &RenderFlags::default())?;
             require_bounded(&t.dataset, &args.run_dir)?;
             let mut cloud = PointCloud::default();
             let bar = nerf::export::progress(true, t.frames.len() as u64, "frames");
@@ -321,14 +326,18 @@ struct Run {
 
 /// Loads a run's model from its checkpoint, and its dataset for cameras and images; `Some`
 /// overrides the run's own render settings.
-fn open_run(run_dir: &Path, time_interp: Option<TimeInterp>, render_step_scale: Option<f32>) -> Result<Run> {
+fn open_run(run_dir: &Path, flags: &RenderFlags) -> Result<Run> {
     let mut t = nsff::checkpoint::load_trained(run_dir)?;
-    if let Some(ti) = time_interp {
-        t.model.settings.time_interp = ti;
+    let settings = &mut t.model.settings;
+    if let Some(ti) = flags.time_interp {
+        settings.time_interp = ti;
     }
-    if let Some(scale) = render_step_scale {
+    if let Some(gb) = flags.gate_between {
+        settings.gate_between = gb;
+    }
+    if let Some(scale) = flags.render_step_scale {
         check_render_step_scale("--render-step-scale", scale).map_err(|m| ModelError::usage(run_dir, m))?;
-        t.model.settings.render_step_scale = scale;
+        settings.render_step_scale = scale;
     }
     let cfg = t.state.config;
     let dataset = nerf_data::load::load_video(&cfg.base.data, &cfg.base.load)?;
@@ -480,7 +489,7 @@ fn render_path(t: &Run, kind: PathKind, frame: usize, n: usize, out: &Path) -> R
 }
 
 fn render(args: RenderArgs) -> Result<()> {
-    let mut t = open_run(&args.run_dir, args.time_interp, args.render_step_scale)?;
+    let mut t = open_run(&args.run_dir, &args.render)?;
     t.model.settings.static_only = args.static_only;
     let out = args.out.unwrap_or_else(|| args.run_dir.join("render"));
     match args.cameras {

@@ -14,7 +14,7 @@ use nerf_core::field::Field;
 use nerf_core::sampler::MarchConfig;
 use nerf_core::timed_occupancy::TimedOccupancy;
 
-use crate::config::{NsffConfig, TimeInterp};
+use crate::config::{GateBetween, NsffConfig, TimeInterp};
 use crate::field::{BLEND, DynamicField, GATE, StaticField};
 
 #[derive(Module, Debug)]
@@ -60,6 +60,7 @@ pub struct RenderSettings {
     /// Samples whose static blend weight b_s is below this skip the dynamic field at inference.
     pub blend_skip: f32,
     pub time_interp: TimeInterp,
+    pub gate_between: GateBetween,
     /// Renders the static field alone, σ_static at full weight with the dynamic field skipped
     /// (a diagnosis: `nsff eval --static-only`); the combined model scales σ_static by 1 − b.
     pub static_only: bool,
@@ -81,6 +82,7 @@ impl RenderSettings {
             render_step_scale: cfg.render_step_scale,
             blend_skip: cfg.blend_skip,
             time_interp: cfg.time_interp,
+            gate_between: cfg.gate_between,
             static_only: false,
         }
     }

@@ -15,7 +15,9 @@ use nerf_core::sampler::{self, MarchConfig, RaySamples, Spacing, stratified};
 use nerf_data::{Camera, Dataset};
 use rand::rngs::StdRng;
 
-use crate::field::{BLEND, DynamicField, FLOW_NEXT, FLOW_PREV, GATE};
+use crate::config::GateBetween;
+use crate::eval::frame_position;
+use crate::field::{BLEND, DynamicField, FLOW_NEXT, FLOW_PREV, GATE, time_column};
 use crate::geometry;
 use crate::model::{NsffModel, query_dynamic};
 
@@ -196,7 +198,10 @@ pub fn render_direct(
             let s = read_back(dy.sigma, "dynamic density")?;
             let c = read_back(dy.rgb, "dynamic colour")?;
             let f = read_back(dy.extras.expect(FLOW_NEXT), "scene flow")?;
-            let g = read_back(dy.extras.expect(GATE), "time gate")?;
+            let mut g = read_back(dy.extras.expect(GATE), "time gate")?;
+            if settings.gate_between == GateBetween::Held {
+                hold_gate(dynamic, &model.times, time, &pick(&pos), &mut g, &plain)?;
+            }
             for (k, &i) in keep.iter().enumerate() {
                 blend[i] *= g[k];
                 sigma_dy[i] = s[k];
@@ -232,6 +237,45 @@ pub fn render_direct(
         samples_per_ray: s_n as f64 / r,
         dynamic_per_ray: evaluated as f64 / r,
     })
+}
+
+/// Between training frames i and i + 1, a fraction r of the way, raises each sample's time gate
+/// towards the larger of the two frames' gates at the same point, by w = 1 − |2r − 1| (full
+/// half-way, none on a frame, so renders stay continuous in time): a point that either frame
+/// draws with the dynamic field stays drawn between them. `positions` is `S·3`, `gate` `S`.
+fn hold_gate(
+    dynamic: &DynamicField,
+    times: &[f32],
+    time: f32,
+    positions: &[f32],
+    gate: &mut [f32],
+    device: &Device,
+) -> Result<(), ModelError> {
+    if times.len() < 2 || gate.is_empty() {
+        return Ok(());
+    }
+    let tau = frame_position(times, time);
+    let i = (tau.floor() as usize).min(times.len() - 2);
+    let w = 1.0 - (2.0 * (tau - i as f32) - 1.0).abs();
+    if w <= 0.0 {
+        return Ok(());
+    }
+    let n = gate.len();
+    let mut held = vec![0.0f32; n];
+    for t in [times[i], times[i + 1]] {
+        let d = dynamic.density(
+            tensor(positions.to_vec(), 3, device),
+            Some(time_column(t, n, device)),
+        );
+        let at_frame = read_back(d.extras.expect(GATE), "time gate at a frame")?;
+        for (h, v) in held.iter_mut().zip(at_frame) {
+            *h = h.max(v);
+        }
+    }
+    for (g, h) in gate.iter_mut().zip(held) {
+        *g += w * (h - *g).max(0.0);
+    }
+    Ok(())
 }
 
 /// Render channels beside colour, depth and opacity: the share of each pixel rendered by the
@@ -429,6 +473,9 @@ mod tests {
         let dev = Device::flex().autodiff();
         let (cfg, bounds, model, rays) = untrained_scene(&dev);
         let bg = Some([0.9f32, 0.5, 0.1]);
+        // Training renders with the field's own gate; the held gate is a render-time rule.
+        let mut model = model;
+        model.settings.gate_between = GateBetween::Field;
         let dynamic = model.fields.dynamic.as_ref().unwrap();
         for time in [0.5f32, 0.3] {
             let samples = sample_rays(&rays, &bounds, cfg.samples, true, None, None);
@@ -451,6 +498,59 @@ mod tests {
                 assert_close(&format!("t = {time}, {name}"), &a, &b, 1e-5);
             }
         }
+    }
+
+    /// Between frames the held gate is max(g, g_i, g_{i+1}) half-way and g + w·(max − g) with
+    /// w = 1 − |2r − 1| elsewhere, the frames' gates read by full queries (not the density-only
+    /// query the rule uses); on a frame it is the field's gate, and so is the whole render.
+    #[test]
+    fn the_held_gate_rises_to_the_neighbouring_frames_gates() {
+        let dev = Device::flex();
+        let (_, bounds, mut model, rays) = untrained_scene(&dev);
+        let dynamic = model.fields.dynamic.as_ref().unwrap();
+        // A fresh grid's features are near zero, so its gate hardly changes with time: spread
+        // the tables (a fixed pseudo-random ±0.5) so that the frames' gates differ.
+        for grid in dynamic.host_params() {
+            let n = grid.table().len();
+            grid.set_table(
+                (0..n)
+                    .map(|i| ((i * 7919 % 1009) as f32 / 1009.0) - 0.5)
+                    .collect(),
+            )
+            .unwrap();
+        }
+        let samples = sample_rays(&rays, &bounds, 8, true, None, None);
+        let (pos, dirs) = (samples.positions(&rays), samples.per_sample3(&rays.viewdirs()));
+        let gate_at = |t: f32| {
+            host(
+                query_dynamic(dynamic, tensor(pos.clone(), 3, &dev), t, &dirs)
+                    .extras
+                    .expect(GATE),
+            )
+        };
+        let (g0, g1) = (gate_at(0.0), gate_at(0.5));
+        let mut rose = 0.0f32;
+        for (time, w) in [(0.25f32, 1.0f32), (0.125, 0.5), (0.375, 0.5), (0.5, 0.0)] {
+            let own = gate_at(time);
+            let mut held = own.clone();
+            hold_gate(dynamic, &model.times, time, &pos, &mut held, &dev).unwrap();
+            for k in 0..own.len() {
+                let want = own[k] + w * (g0[k].max(g1[k]) - own[k]).max(0.0);
+                assert!(
+                    (held[k] - want).abs() <= 1e-6,
+                    "t = {time}, sample {k}: {} vs {want}",
+                    held[k]
+                );
+                rose = rose.max(held[k] - own[k]);
+            }
+        }
+        // The check can fail: the neighbours' gates differ from the in-between one.
+        assert!(rose > 1e-5, "the held gate never rose ({rose})");
+        let bg = Some([0.9f32, 0.5, 0.1]);
+        let held = render_direct(&model, &rays, 0.5, bg, &dev).unwrap();
+        model.settings.gate_between = GateBetween::Field;
+        let field = render_direct(&model, &rays, 0.5, bg, &dev).unwrap();
+        assert_eq!(held.rgb, field.rgb, "on a frame the rule changes nothing");
     }
 
     /// The static field alone (`nsff eval --static-only`, and a model without a dynamic field)
