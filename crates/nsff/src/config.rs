@@ -232,10 +232,10 @@ pub enum GateBetween {
     /// The dynamic field's own gate at that time (its time cells interpolate the two
     /// neighbouring frames').
     Field,
-    /// Raised towards the larger of the two neighbouring frames' gates at the same point, fully
-    /// half-way and not at all on a frame: what either frame draws with the dynamic field stays
-    /// drawn between them (the default: on the seven tuning videos' checkpoints +0.13 dB between
-    /// frames, none lower; BENCHMARKS.md §6, fifty-fifth session).
+    /// Raised towards the largest of the nearby frames' gates at the same point (`gate_reach`
+    /// frames on each side), fully half-way and not at all on a frame: what a nearby frame draws
+    /// with the dynamic field stays drawn between frames (the default; BENCHMARKS.md §6,
+    /// fifty-fifth and fifty-sixth sessions).
     #[default]
     Held,
 }
@@ -560,6 +560,16 @@ pub struct NsffConfig {
     /// it render with the default).
     #[serde(default)]
     pub gate_between: GateBetween,
+    /// Frames on each side of a render time whose gates the held gate reaches (`held` only):
+    /// 1 reads frames i and i+1, 2 reads i−1 … i+2 (render-time only). On the seven tuning
+    /// videos' checkpoints, 2 gains 0.22 dB between frames over the field's gate and 1 gains
+    /// 0.13; 2 was first seen on other checkpoints (BENCHMARKS.md §6, fifty-sixth session).
+    #[serde(default = "default_gate_reach")]
+    pub gate_reach: usize,
+}
+
+fn default_gate_reach() -> usize {
+    2
 }
 
 fn default_time_gate() -> bool {
@@ -809,6 +819,7 @@ impl NsffConfig {
             flow_weights_share: 0.0,
             time_gate: default_time_gate(),
             gate_between: GateBetween::default(),
+            gate_reach: default_gate_reach(),
         }
     }
 
@@ -1014,6 +1025,9 @@ impl NsffConfig {
         if self.warp_hops == 0 {
             return Err("warp_hops must be at least 1 (the neighbour itself)".into());
         }
+        if self.gate_reach == 0 {
+            return Err("gate_reach must be at least 1 (the two neighbouring frames)".into());
+        }
         if !(self.warp_chain_weight.is_finite() && self.warp_chain_weight >= 0.0) {
             return Err(format!(
                 "warp_chain_weight must be a finite number, 0 or more, got {}",
@@ -1058,9 +1072,9 @@ mod tests {
         assert!(cfg.validate().is_ok());
     }
 
-    /// A negative or NaN jitter, a render step scale that is not positive, or a still-ray weight
-    /// outside [0, 1] is refused with the setting's name (a zero step would put every render
-    /// sample at one point).
+    /// A negative or NaN jitter, a render step scale that is not positive, a gate reach of 0, or
+    /// a still-ray weight outside [0, 1] is refused with the setting's name (a zero step would
+    /// put every render sample at one point).
     #[test]
     fn jitter_and_render_step_must_make_sense() {
         let fresh = || NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
@@ -1074,6 +1088,10 @@ mod tests {
             cfg.render_step_scale = scale;
             assert!(cfg.validate().unwrap_err().contains("render_step_scale"));
         }
+        // The held gate reads at least the two neighbouring frames.
+        let mut cfg = fresh();
+        cfg.gate_reach = 0;
+        assert!(cfg.validate().unwrap_err().contains("gate_reach"));
         // The dynamic-only render's weight on still rays is a fraction.
         for (w, ok) in [
             (1.0, true),

@@ -107,10 +107,15 @@ struct RenderFlags {
     /// smaller is finer and slower).
     #[arg(long)]
     render_step_scale: Option<f32>,
-    /// How the direct renders between frames read the time gate: held (raised towards the two
-    /// neighbouring frames' larger gate) or field (the field's own gate at that time).
+    /// How the direct renders between frames read the time gate: held (raised towards the
+    /// largest gate of the nearby frames, see --gate-reach) or field (the field's own gate at
+    /// that time).
     #[arg(long, value_enum)]
     gate_between: Option<GateBetween>,
+    /// Frames on each side of the render time whose gates the held gate reaches (1: frames i
+    /// and i+1; 2, the default: i−1 … i+2).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=8))]
+    gate_reach: Option<u32>,
 }
 
 #[derive(clap::Args)]
@@ -334,6 +339,9 @@ fn open_run(run_dir: &Path, flags: &RenderFlags) -> Result<Run> {
     }
     if let Some(gb) = flags.gate_between {
         settings.gate_between = gb;
+    }
+    if let Some(reach) = flags.gate_reach {
+        settings.gate_reach = reach as usize;
     }
     if let Some(scale) = flags.render_step_scale {
         check_render_step_scale("--render-step-scale", scale).map_err(|m| ModelError::usage(run_dir, m))?;

@@ -61,6 +61,8 @@ pub struct RenderSettings {
     pub blend_skip: f32,
     pub time_interp: TimeInterp,
     pub gate_between: GateBetween,
+    /// Frames on each side whose gates the held gate reaches ([`NsffConfig::gate_reach`]).
+    pub gate_reach: usize,
     /// Renders the static field alone, σ_static at full weight with the dynamic field skipped
     /// (a diagnosis: `nsff eval --static-only`); the combined model scales σ_static by 1 − b.
     pub static_only: bool,
@@ -83,6 +85,7 @@ impl RenderSettings {
             blend_skip: cfg.blend_skip,
             time_interp: cfg.time_interp,
             gate_between: cfg.gate_between,
+            gate_reach: cfg.gate_reach,
             static_only: false,
         }
     }

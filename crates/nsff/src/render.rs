@@ -200,7 +200,8 @@ pub fn render_direct(
             let f = read_back(dy.extras.expect(FLOW_NEXT), "scene flow")?;
             let mut g = read_back(dy.extras.expect(GATE), "time gate")?;
             if settings.gate_between == GateBetween::Held {
-                hold_gate(dynamic, &model.times, time, &pick(&pos), &mut g, &plain)?;
+                let reach = settings.gate_reach;
+                hold_gate(dynamic, &model.times, time, reach, &pick(&pos), &mut g, &plain)?;
             }
             for (k, &i) in keep.iter().enumerate() {
                 blend[i] *= g[k];
@@ -240,13 +241,15 @@ pub fn render_direct(
 }
 
 /// Between training frames i and i + 1, a fraction r of the way, raises each sample's time gate
-/// towards the larger of the two frames' gates at the same point, by w = 1 − |2r − 1| (full
-/// half-way, none on a frame, so renders stay continuous in time): a point that either frame
-/// draws with the dynamic field stays drawn between them. `positions` is `S·3`, `gate` `S`.
+/// towards the largest gate at the same point of frames i+1−reach … i+reach (clipped to the
+/// video), by w = 1 − |2r − 1| (full half-way, none on a frame, so renders stay continuous in
+/// time): a point that a nearby frame draws with the dynamic field stays drawn between frames.
+/// `positions` is `S·3`, `gate` `S`.
 fn hold_gate(
     dynamic: &DynamicField,
     times: &[f32],
     time: f32,
+    reach: usize,
     positions: &[f32],
     gate: &mut [f32],
     device: &Device,
@@ -260,9 +263,11 @@ fn hold_gate(
     if w <= 0.0 {
         return Ok(());
     }
+    // Frames i+1−reach … i+reach, clipped to the video.
+    let frames = (i + 1).saturating_sub(reach)..=(i + reach).min(times.len() - 1);
     let n = gate.len();
     let mut held = vec![0.0f32; n];
-    for t in [times[i], times[i + 1]] {
+    for t in frames.map(|f| times[f]) {
         let d = dynamic.density(
             tensor(positions.to_vec(), 3, device),
             Some(time_column(t, n, device)),
@@ -500,9 +505,10 @@ mod tests {
         }
     }
 
-    /// Between frames the held gate is max(g, g_i, g_{i+1}) half-way and g + w·(max − g) with
-    /// w = 1 − |2r − 1| elsewhere, the frames' gates read by full queries (not the density-only
-    /// query the rule uses); on a frame it is the field's gate, and so is the whole render.
+    /// Between frames the held gate is max(g, frames' gates) half-way and g + w·(max − g) with
+    /// w = 1 − |2r − 1| elsewhere, over frames i and i+1 (reach 1) or i−1 … i+2 clipped to the
+    /// video (reach 2), the frames' gates read by full queries (not the density-only query the
+    /// rule uses); on a frame it is the field's gate, and so is the whole render.
     #[test]
     fn the_held_gate_rises_to_the_neighbouring_frames_gates() {
         let dev = Device::flex();
@@ -528,24 +534,40 @@ mod tests {
                     .expect(GATE),
             )
         };
-        let (g0, g1) = (gate_at(0.0), gate_at(0.5));
-        let mut rose = 0.0f32;
-        for (time, w) in [(0.25f32, 1.0f32), (0.125, 0.5), (0.375, 0.5), (0.5, 0.0)] {
+        // The three frames are at 0, 0.5 and 1.
+        let frame_gates = [gate_at(0.0), gate_at(0.5), gate_at(1.0)];
+        let mut rose = [0.0f32; 2];
+        let cases = [
+            (0.25f32, 1.0f32, [0..=1, 0..=2]),
+            (0.125, 0.5, [0..=1, 0..=2]),
+            (0.375, 0.5, [0..=1, 0..=2]),
+            (0.75, 1.0, [1..=2, 0..=2]),
+            (0.5, 0.0, [1..=2, 0..=2]),
+        ];
+        for (time, w, read) in cases {
             let own = gate_at(time);
-            let mut held = own.clone();
-            hold_gate(dynamic, &model.times, time, &pos, &mut held, &dev).unwrap();
-            for k in 0..own.len() {
-                let want = own[k] + w * (g0[k].max(g1[k]) - own[k]).max(0.0);
-                assert!(
-                    (held[k] - want).abs() <= 1e-6,
-                    "t = {time}, sample {k}: {} vs {want}",
-                    held[k]
-                );
-                rose = rose.max(held[k] - own[k]);
+            for (reach, frames) in [1usize, 2].into_iter().zip(read) {
+                let mut held = own.clone();
+                hold_gate(dynamic, &model.times, time, reach, &pos, &mut held, &dev).unwrap();
+                for k in 0..own.len() {
+                    let top = frames.clone().map(|f| frame_gates[f][k]).fold(0.0f32, f32::max);
+                    let want = own[k] + w * (top - own[k]).max(0.0);
+                    assert!(
+                        (held[k] - want).abs() <= 1e-6,
+                        "t = {time}, reach {reach}, sample {k}: {} vs {want}",
+                        held[k]
+                    );
+                    rose[reach - 1] = rose[reach - 1].max(held[k] - own[k]);
+                }
             }
         }
-        // The check can fail: the neighbours' gates differ from the in-between one.
-        assert!(rose > 1e-5, "the held gate never rose ({rose})");
+        // The check can fail: the neighbours' gates differ from the in-between one, and the
+        // third frame's from the two neighbours'.
+        assert!(rose[0] > 1e-5, "the held gate never rose ({rose:?})");
+        assert!(
+            rose[1] > rose[0] + 1e-5,
+            "reach 2 rose no higher than reach 1 ({rose:?})"
+        );
         let bg = Some([0.9f32, 0.5, 0.1]);
         let held = render_direct(&model, &rays, 0.5, bg, &dev).unwrap();
         model.settings.gate_between = GateBetween::Field;
