@@ -113,7 +113,8 @@ struct RenderFlags {
     #[arg(long, value_enum)]
     gate_between: Option<GateBetween>,
     /// Frames on each side of the render time whose gates the held gate reaches (1: frames i
-    /// and i+1; 2, the default: i−1 … i+2).
+    /// and i+1; 3, the default: i−2 … i+3). Each frame read costs one density query of the
+    /// dynamic field per sample between frames.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=8))]
     gate_reach: Option<u32>,
 }
