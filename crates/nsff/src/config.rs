@@ -563,9 +563,8 @@ pub struct NsffConfig {
     /// Frames on each side of a render time whose gates the held gate reaches (`held` only):
     /// 1 reads frames i and i+1, 3 (the default) reads i−2 … i+3 (render-time only). On two
     /// independent sets of the seven tuning videos' checkpoints, 3 gains 0.03 dB on the mean
-    /// over 2 on 7/7 videos each time, and 0.28-0.31 dB between frames over the field's gate; a
-    /// whole eval takes 1.1-1.2× as long as with 2 (BENCHMARKS.md §6, fifty-sixth and
-    /// fifty-seventh sessions).
+    /// over 2 on 7/7 videos each time, and 0.28-0.31 dB between frames over the field's gate
+    /// (BENCHMARKS.md §6, fifty-sixth and fifty-seventh sessions, with its render cost).
     #[serde(default = "default_gate_reach")]
     pub gate_reach: usize,
 }
