@@ -192,23 +192,26 @@ pub fn render_direct(
         let keep: Vec<usize> = (0..s_n).filter(|&i| blend[i] >= settings.blend_skip).collect();
         evaluated = keep.len();
         if !keep.is_empty() {
-            let pick =
-                |v: &[f32]| -> Vec<f32> { keep.iter().flat_map(|&i| v[3 * i..3 * i + 3].to_vec()).collect() };
-            let dy = query_dynamic(dynamic, tensor(pick(&pos), 3, &plain), time, &pick(&dirs));
+            let kept_pos = rows3(&pos, &keep);
+            let dy = query_dynamic(
+                dynamic,
+                tensor(kept_pos.clone(), 3, &plain),
+                time,
+                &rows3(&dirs, &keep),
+            );
             let s = read_back(dy.sigma, "dynamic density")?;
             let c = read_back(dy.rgb, "dynamic colour")?;
             let f = read_back(dy.extras.expect(FLOW_NEXT), "scene flow")?;
             let mut g = read_back(dy.extras.expect(GATE), "time gate")?;
             if settings.gate_between == GateBetween::Held {
                 let reach = settings.gate_reach;
-                let at = pick(&pos);
                 hold_gate(
                     dynamic,
                     &model.times,
                     time,
                     reach,
                     HELD_GATE_SKIP,
-                    &at,
+                    &kept_pos,
                     &mut g,
                     &plain,
                 )?;
@@ -250,6 +253,11 @@ pub fn render_direct(
     })
 }
 
+/// The 3-vectors `rows` of a flat `N·3` array, in that order: `rows.len()·3`.
+pub(crate) fn rows3(v: &[f32], rows: &[usize]) -> Vec<f32> {
+    rows.iter().flat_map(|&i| v[3 * i..3 * i + 3].to_vec()).collect()
+}
+
 /// Samples whose own gate is at least this are left as they are by the held gate: it could
 /// raise them by at most 1 − this, and on the tuning videos 14-43 % of the samples between
 /// frames are there (BENCHMARKS.md §6, fifty-seventh session).
@@ -284,16 +292,13 @@ fn hold_gate(
     if open.is_empty() {
         return Ok(());
     }
-    let at: Vec<f32> = open
-        .iter()
-        .flat_map(|&k| positions[3 * k..3 * k + 3].to_vec())
-        .collect();
+    let at = tensor(rows3(positions, &open), 3, device);
     // Frames i+1−reach … i+reach, clipped to the video.
     let frames = (i + 1).saturating_sub(reach)..=(i + reach).min(times.len() - 1);
     let n = open.len();
     let mut held = vec![0.0f32; n];
     for t in frames.map(|f| times[f]) {
-        let d = dynamic.density(tensor(at.clone(), 3, device), Some(time_column(t, n, device)));
+        let d = dynamic.density(at.clone(), Some(time_column(t, n, device)));
         let at_frame = read_back(d.extras.expect(GATE), "time gate at a frame")?;
         for (h, v) in held.iter_mut().zip(at_frame) {
             *h = h.max(v);

@@ -26,7 +26,7 @@ use crate::field::{BLEND, DynamicField, FLOW_NEXT, FLOW_PREV, GATE, PROB_NEXT, P
 use crate::geometry;
 use crate::losses;
 use crate::model::{NsffModel, query_dynamic};
-use crate::render::{DYNAMIC_SHARE, query_space_time, render_combined, render_options, sample_rays};
+use crate::render::{DYNAMIC_SHARE, query_space_time, render_combined, render_options, rows3, sample_rays};
 use crate::video::{Video, prepare};
 
 pub use crate::checkpoint::NsffState;
@@ -1065,10 +1065,7 @@ impl NsffTrainer {
         let n = ((s_n as f32 * self.cfg.still_share).ceil() as usize).clamp(1, s_n);
         let mut order: Vec<usize> = (0..s_n).collect();
         let (picked, _) = order.partial_shuffle(rng, n);
-        let dirs: Vec<f32> = picked
-            .iter()
-            .flat_map(|&i| q.dirs[3 * i..3 * i + 3].to_vec())
-            .collect();
+        let dirs = rows3(&q.dirs, picked);
         let ids: Vec<i64> = picked.iter().map(|&i| i as i64).collect();
         let ids = Tensor::<1, Int>::from_data(TensorData::new(ids, [n]), dev);
         let pick = |t: &Tensor<2>| t.clone().select(0, ids.clone());
