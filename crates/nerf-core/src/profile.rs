@@ -1,5 +1,5 @@
 //! Opt-in wall-clock profiling of named phases (`NERF_PROFILE=1`), for finding where a training
-//! step spends its time. Costs one relaxed atomic load per span when off.
+//! step or a render spends its time. Costs one relaxed atomic load per span when off.
 
 use std::collections::BTreeMap;
 use std::sync::Mutex;
@@ -47,6 +47,13 @@ pub fn report() -> String {
             )
         })
         .collect()
+}
+
+/// Prints the accumulated table to stderr when profiling is on (end of a train, eval or render).
+pub fn eprint_report() {
+    if enabled() {
+        eprint!("{}", report());
+    }
 }
 
 /// The accumulated table, then starts a new one: for phases of one run that cost differently

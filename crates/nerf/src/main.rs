@@ -162,8 +162,8 @@ fn run(cli: Cli) -> Result<()> {
             run_dir,
             split,
             save_images,
-        } => eval(&run_dir, &split, save_images),
-        Command::Render(args) => render(args),
+        } => eval(&run_dir, &split, save_images).map(|()| nerf_core::profile::eprint_report()),
+        Command::Render(args) => render(args).map(|()| nerf_core::profile::eprint_report()),
         Command::View(args) => {
             let t = open_run(&args.run_dir)?;
             let title = format!("{} (step {})", args.run_dir.display(), t.step);

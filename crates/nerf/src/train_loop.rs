@@ -152,9 +152,7 @@ pub fn train(t: &mut impl Trainable, header: &str, show_progress: bool) -> Resul
         }
     }
     progress.finish();
-    if nerf_core::profile::enabled() {
-        eprint!("{}", nerf_core::profile::report());
-    }
+    nerf_core::profile::eprint_report();
     if let Some(peak) = nerf_core::profile::peak_memory_bytes() {
         eprintln!(
             "peak memory {:.2} GiB (resident)",

@@ -168,9 +168,10 @@ fn run(cli: Cli) -> Result<()> {
             let name = if static_only { "eval_static" } else { "eval" };
             let r = write_eval(&t, save_images, name)?;
             println!("mean_psnr {:.4}", r.mean_psnr);
+            nerf_core::profile::eprint_report();
             Ok(())
         }
-        Command::Render(args) => render(args),
+        Command::Render(args) => render(args).map(|()| nerf_core::profile::eprint_report()),
         Command::View(args) => {
             let t = open_run(&args.run_dir, &RenderFlags::default())?;
             let title = format!("{} (step {})", args.run_dir.display(), t.step);

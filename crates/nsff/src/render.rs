@@ -9,6 +9,7 @@ use nerf::error::{ModelError, read_back};
 use nerf::renderer::{SceneBounds, tensor};
 use nerf_core::field::{Field, FieldOutputs, FieldQuery};
 use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::profile::span;
 use nerf_core::rays::{Rays, intersect_aabb};
 use nerf_core::render::{Background, Component, RenderOptions, RenderOutput, add_background_host, render};
 use nerf_core::sampler::{self, MarchConfig, RaySamples, Spacing, stratified};
@@ -150,7 +151,9 @@ pub fn render_direct(
     let (bounds, settings) = (&model.bounds, &model.settings);
     let render_march = settings.render_march();
     let march = model.occupancy.as_ref().map(|g| (g.at(time), &render_march));
-    let samples = sample_rays(rays, bounds, settings.samples, !bounds.open_far, march, None);
+    let samples = span("render_march", || {
+        sample_rays(rays, bounds, settings.samples, !bounds.open_far, march, None)
+    });
     let s_n = samples.num_samples();
     if s_n == 0 {
         let out = render(
@@ -173,10 +176,13 @@ pub fn render_direct(
     }
     let pos = samples.positions(rays);
     let dirs = samples.per_sample3(&rays.viewdirs());
-    let st = fields
-        .static_field
-        .query(FieldQuery::new(tensor(pos.clone(), 3, &plain), &dirs));
-    let mut blend = read_back(st.extras.expect(BLEND), "blend weight")?;
+    // Spans end with a read-back, so they time the work, not the building of a lazy graph.
+    let (st, mut blend) = span("render_static", || {
+        let st = fields
+            .static_field
+            .query(FieldQuery::new(tensor(pos.clone(), 3, &plain), &dirs));
+        read_back(st.extras.expect(BLEND), "blend weight").map(|b| (st, b))
+    })?;
     // Without the dynamic field the static field renders at full density, as it trains (the
     // static pipeline's loss) and as the occupancy grid sees it.
     let dynamic = fields.dynamic.as_ref().filter(|_| !settings.static_only);
@@ -193,28 +199,34 @@ pub fn render_direct(
         evaluated = keep.len();
         if !keep.is_empty() {
             let kept_pos = rows3(&pos, &keep);
-            let dy = query_dynamic(
-                dynamic,
-                tensor(kept_pos.clone(), 3, &plain),
-                time,
-                &rows3(&dirs, &keep),
-            );
-            let s = read_back(dy.sigma, "dynamic density")?;
-            let c = read_back(dy.rgb, "dynamic colour")?;
-            let f = read_back(dy.extras.expect(FLOW_NEXT), "scene flow")?;
-            let mut g = read_back(dy.extras.expect(GATE), "time gate")?;
+            let (s, c, f, mut g) = span("render_dynamic", || {
+                let dy = query_dynamic(
+                    dynamic,
+                    tensor(kept_pos.clone(), 3, &plain),
+                    time,
+                    &rows3(&dirs, &keep),
+                );
+                Ok::<_, ModelError>((
+                    read_back(dy.sigma, "dynamic density")?,
+                    read_back(dy.rgb, "dynamic colour")?,
+                    read_back(dy.extras.expect(FLOW_NEXT), "scene flow")?,
+                    read_back(dy.extras.expect(GATE), "time gate")?,
+                ))
+            })?;
             if settings.gate_between == GateBetween::Held {
                 let reach = settings.gate_reach;
-                hold_gate(
-                    dynamic,
-                    &model.times,
-                    time,
-                    reach,
-                    HELD_GATE_SKIP,
-                    &kept_pos,
-                    &mut g,
-                    &plain,
-                )?;
+                span("render_held_gate", || {
+                    hold_gate(
+                        dynamic,
+                        &model.times,
+                        time,
+                        reach,
+                        HELD_GATE_SKIP,
+                        &kept_pos,
+                        &mut g,
+                        &plain,
+                    )
+                })?;
             }
             for (k, &i) in keep.iter().enumerate() {
                 blend[i] *= g[k];
@@ -232,24 +244,26 @@ pub fn render_direct(
             .with(DYNAMIC_SHARE, Tensor::ones([s_n, 1], &plain))
             .with(FLOW_MAGNITUDE, tensor(flow_mag, 1, &plain)),
     ];
-    let out = render(
-        rays,
-        &samples,
-        &components,
-        &Background::from_option(background),
-        render_options(model),
-        &plain,
-    );
     let r = rays.len().max(1) as f64;
-    let (share, flow) = (out.expect(DYNAMIC_SHARE), out.expect(FLOW_MAGNITUDE));
-    Ok(HostRender {
-        rgb: read_back(out.rgb, "rendered colour")?,
-        depth: read_back(out.depth, "rendered depth")?,
-        opacity: read_back(out.opacity, "rendered opacity")?,
-        dynamic_share: read_back(share, "dynamic share")?,
-        flow_magnitude: read_back(flow, "flow magnitude")?,
-        samples_per_ray: s_n as f64 / r,
-        dynamic_per_ray: evaluated as f64 / r,
+    span("render_composite", || {
+        let out = render(
+            rays,
+            &samples,
+            &components,
+            &Background::from_option(background),
+            render_options(model),
+            &plain,
+        );
+        let (share, flow) = (out.expect(DYNAMIC_SHARE), out.expect(FLOW_MAGNITUDE));
+        Ok(HostRender {
+            rgb: read_back(out.rgb, "rendered colour")?,
+            depth: read_back(out.depth, "rendered depth")?,
+            opacity: read_back(out.opacity, "rendered opacity")?,
+            dynamic_share: read_back(share, "dynamic share")?,
+            flow_magnitude: read_back(flow, "flow magnitude")?,
+            samples_per_ray: s_n as f64 / r,
+            dynamic_per_ray: evaluated as f64 / r,
+        })
     })
 }
 
