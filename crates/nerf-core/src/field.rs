@@ -12,7 +12,7 @@
 
 use std::sync::Arc;
 
-use burn::tensor::Tensor;
+use burn::tensor::{Int, Tensor, TensorData};
 
 use crate::encoding::HashGrid;
 
@@ -65,6 +65,17 @@ impl<'a> FieldQuery<'a> {
         self.time = time;
         self
     }
+
+    /// Positions `[K, 3]`, times `[K, 1]` and directions `K·3` of the samples `rows` (no density
+    /// noise: this serves inference).
+    pub fn rows(&self, rows: &[usize]) -> (Tensor<2>, Option<Tensor<2>>, Vec<f32>) {
+        let dirs = rows
+            .iter()
+            .flat_map(|&i| self.dirs[3 * i..3 * i + 3].to_vec())
+            .collect();
+        let pick = |t: &Tensor<2>| select_rows(t.clone(), rows);
+        (pick(&self.positions), self.time.as_ref().map(pick), dirs)
+    }
 }
 
 /// Density and the view-independent extras that come with it, for `S` points.
@@ -106,6 +117,13 @@ impl FieldOutputs {
     }
 }
 
+/// Rows `rows` of `[S, C]`: `[K, C]`.
+pub fn select_rows(t: Tensor<2>, rows: &[usize]) -> Tensor<2> {
+    let ids: Vec<i64> = rows.iter().map(|&i| i as i64).collect();
+    let ids = Tensor::<1, Int>::from_data(TensorData::new(ids, [rows.len()]), &t.device());
+    t.select(0, ids)
+}
+
 /// What the scene is: see the module documentation for the contract.
 pub trait Field {
     /// Density (and view-independent extras) at `[S, 3]` positions, at `[S, 1]` times for
@@ -114,6 +132,22 @@ pub trait Field {
 
     /// Density, colour and extras.
     fn query(&self, query: FieldQuery<'_>) -> FieldOutputs;
+
+    /// Inference's early ray termination: densities at every sample of `query`, then the full
+    /// query at the samples `keep` picks from them (`[S, 1]` densities in, ascending sample
+    /// indices out). Returns those indices and their outputs, which are `query`'s at those rows.
+    /// This default queries the picked samples afresh; a field whose colour is computed from its
+    /// density pass's features (the fast field) overrides it to run only its colour network again.
+    fn query_kept(
+        &self,
+        query: FieldQuery<'_>,
+        keep: &mut dyn FnMut(Tensor<2>) -> Vec<usize>,
+    ) -> (Vec<usize>, FieldOutputs) {
+        let rows = keep(self.density(query.positions.clone(), query.time.clone()).sigma);
+        let (positions, time, dirs) = query.rows(&rows);
+        let outputs = self.query(FieldQuery::new(positions, &dirs).at_time(time));
+        (rows, outputs)
+    }
 
     /// Parameters kept on the host outside burn's autodiff (hash tables with their own sparse
     /// optimiser); the model's checkpoint and optimiser step visit them through this.

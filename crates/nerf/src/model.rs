@@ -314,4 +314,82 @@ mod tests {
             }
         }
     }
+
+    /// Inference's early ray termination queries the field once ([`Field::query_kept`]) and
+    /// renders as the two-pass definition does: densities at every marched sample, the samples
+    /// reached before the transmittance falls below `stop_eps`, and a fresh query of those.
+    #[test]
+    fn early_termination_in_one_pass_renders_as_two_passes() {
+        use nerf_core::composite;
+        use nerf_core::field::{Field, FieldQuery};
+        use nerf_core::render::{Component, RenderOptions};
+        let pose = Pose::look_at([0.4, -3.5, 1.0], [0.0; 3], [0.0, 0.0, 1.0]);
+        let camera = Camera::new(Intrinsics::centered(14.0, 12, 10), pose);
+        let rays = nerf_data::rays::camera_rays(&camera);
+        let bg = Background::Color([0.2f32, 0.4, 0.6]);
+        let mut cfg = TrainConfig::new(Preset::Fast, "unused".into(), Default::default());
+        // An untrained field is faint: a loose threshold so that rays do stop.
+        cfg.fast.stop_eps = 0.7;
+        let dev = Device::flex();
+        let bounds = SceneBounds::object(2.0, 6.0, [[-1.5; 3], [1.5; 3]]);
+        let model = StaticModel::new(&cfg, bounds.clone(), &dev);
+        // A fresh grid's features are near zero, so its field hardly varies: spread the tables
+        // (a fixed pseudo-random ±0.5) so that a wrong row would show.
+        for grid in model.fields.field.host_params() {
+            let n = grid.table().len();
+            grid.set_table(
+                (0..n)
+                    .map(|i| ((i * 7919 % 1009) as f32 / 1009.0) - 0.5)
+                    .collect(),
+            )
+            .unwrap();
+        }
+        let got = model.render(&rays, &bg, Pass::Infer, &dev).unwrap();
+
+        let field = &model.fields.field;
+        let march = &cfg.fast.march;
+        let samples = nerf_core::sampler::march(
+            &rays,
+            bounds.aabb,
+            bounds.near,
+            bounds.far,
+            model.occupancy.as_ref(),
+            march,
+            None::<&mut StdRng>,
+        );
+        let sigma = crate::renderer::density_host(field, &samples.positions(&rays), &dev).unwrap();
+        let options = RenderOptions {
+            open_far: false,
+            stop_eps: cfg.fast.stop_eps,
+        };
+        let alive = composite::alive(&sigma, &samples.layout(&rays, false), options.stop_eps);
+        let reached = samples.filter(&alive);
+        assert!(
+            reached.num_samples() < samples.num_samples() && reached.num_samples() > 0,
+            "rays must stop early for the check to mean anything ({} of {})",
+            reached.num_samples(),
+            samples.num_samples()
+        );
+        let dirs = reached.per_sample3(&rays.viewdirs());
+        let q = field.query(FieldQuery::new(
+            crate::renderer::tensor(reached.positions(&rays), 3, &dev),
+            &dirs,
+        ));
+        let want = nerf_core::render::render(
+            &rays,
+            &reached,
+            &[Component::new(q.sigma, q.rgb)],
+            &bg,
+            options,
+            &dev,
+        );
+        assert_eq!(got.samples, reached.num_samples(), "samples evaluated");
+        for (name, a, b) in [
+            ("rgb", host(got.out.rgb), host(want.rgb)),
+            ("depth", host(got.out.depth), host(want.depth)),
+            ("opacity", host(got.out.opacity), host(want.opacity)),
+        ] {
+            assert_close(name, &a, &b, 1e-5);
+        }
+    }
 }

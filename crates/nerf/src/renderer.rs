@@ -4,7 +4,7 @@
 
 use burn::tensor::{Device, Tensor};
 use nerf_core::composite;
-use nerf_core::field::{Field, FieldQuery};
+use nerf_core::field::{Field, FieldOutputs, FieldQuery};
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::profile::span;
 use nerf_core::rays::Rays;
@@ -173,18 +173,80 @@ pub fn render_march<F: FieldModule>(
         open_far: false,
         stop_eps,
     };
-    if early_termination && samples.num_samples() > 0 {
-        let sigma = span("early_stop_density", || {
-            density_host(field, &samples.positions(rays), device)
-        })?;
-        let alive = composite::alive(&sigma, &samples.layout(rays, options.open_far), stop_eps);
-        samples = samples.filter(&alive);
-    }
-    let out = query_and_render(field, rays, &samples, None, background, options, device);
+    let out = if early_termination && samples.num_samples() > 0 && !pass.is_train() {
+        let (reached, fields) = query_reached(field, rays, &samples, options.open_far, stop_eps, device)?;
+        samples = reached;
+        render_one(rays, &samples, fields, background, options, device)
+    } else {
+        if early_termination && samples.num_samples() > 0 {
+            // Training: a no-grad density pass, then the differentiable query of the survivors.
+            let sigma = span("early_stop_density", || {
+                density_host(field, &samples.positions(rays), device)
+            })?;
+            let alive = composite::alive(&sigma, &samples.layout(rays, options.open_far), stop_eps);
+            samples = samples.filter(&alive);
+        }
+        query_and_render(field, rays, &samples, None, background, options, device)
+    };
     Ok(Rendered {
         samples: out.samples,
         out,
         coarse_rgb: None,
+    })
+}
+
+/// Inference's early ray termination in one pass over the field ([`Field::query_kept`]): the
+/// samples each ray reaches before its transmittance falls below `stop_eps`, and the field's
+/// outputs there.
+fn query_reached<F: Field>(
+    field: &F,
+    rays: &Rays,
+    samples: &RaySamples,
+    open_far: bool,
+    stop_eps: f32,
+    device: &Device,
+) -> Result<(RaySamples, FieldOutputs), ModelError> {
+    let dirs = samples.per_sample3(&rays.viewdirs());
+    let query = FieldQuery::new(tensor(samples.positions(rays), 3, device), &dirs);
+    let layout = samples.layout(rays, open_far);
+    let mut alive = Vec::new();
+    let mut failed = None;
+    let (_, outputs) = span("field_forward", || {
+        field.query_kept(query, &mut |sigma| match read_back(sigma, "density") {
+            Ok(sigma) => {
+                alive = composite::alive(&sigma, &layout, stop_eps);
+                (0..alive.len()).filter(|&i| alive[i]).collect()
+            }
+            Err(e) => {
+                failed = Some(e);
+                Vec::new()
+            }
+        })
+    });
+    match failed {
+        Some(e) => Err(e),
+        None => Ok((samples.filter(&alive), outputs)),
+    }
+}
+
+/// Composites one field's outputs at `samples`.
+fn render_one(
+    rays: &Rays,
+    samples: &RaySamples,
+    outputs: FieldOutputs,
+    background: &Background,
+    options: RenderOptions,
+    device: &Device,
+) -> RenderOutput {
+    span("composite", || {
+        render(
+            rays,
+            samples,
+            &[Component::new(outputs.sigma, outputs.rgb)],
+            background,
+            options,
+            device,
+        )
     })
 }
 
@@ -206,16 +268,7 @@ fn query_and_render<F: Field>(
     let mut query = FieldQuery::new(tensor(samples.positions(rays), 3, device), &dirs);
     query.density_noise = noise.map(|n| tensor(n, 1, device));
     let out = span("field_forward", || field.query(query));
-    span("composite", || {
-        render(
-            rays,
-            samples,
-            &[Component::new(out.sigma, out.rgb)],
-            background,
-            options,
-            device,
-        )
-    })
+    render_one(rays, samples, out, background, options, device)
 }
 
 /// Gaussian noise for `n` samples (Box–Muller from two uniforms), or `None` when not training.

@@ -16,7 +16,7 @@ use burn::tensor::activation::sigmoid;
 use burn::tensor::{Device, Tensor};
 use nerf_core::encoding::spherical_harmonics;
 use nerf_core::encoding::{GridEncoding, HashGrid, HashGridConfig, SpaceTimePlanes};
-use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery};
+use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery, select_rows};
 use nerf_core::mlp::{Mlp, MlpConfig};
 
 use super::grid_coords;
@@ -103,6 +103,26 @@ impl FastField {
     fn extras(&self, features: Tensor<2>) -> Extras {
         super::raw_extras(self.extra.as_ref(), features)
     }
+
+    /// Density, colour and extras from geometry features `[S, G]` and `S·3` view directions.
+    fn outputs(&self, geo: Tensor<2>, dirs: &[f32]) -> FieldOutputs {
+        let n = geo.dims()[0];
+        let sh = Tensor::<2>::from_data(
+            burn::tensor::TensorData::new(
+                spherical_harmonics::encode(dirs, self.sh_degree),
+                [n, self.sh_degree * self.sh_degree],
+            ),
+            &geo.device(),
+        );
+        let rgb = nerf_core::profile::span("fwd.color_mlp", || {
+            sigmoid(self.color.forward(Tensor::cat(vec![geo.clone(), sh], 1)))
+        });
+        FieldOutputs {
+            sigma: self.sigma(&geo),
+            rgb,
+            extras: self.extras(geo),
+        }
+    }
 }
 
 impl Field for FastField {
@@ -115,25 +135,29 @@ impl Field for FastField {
     }
 
     fn query(&self, query: FieldQuery<'_>) -> FieldOutputs {
-        let device = query.positions.device();
         let geo = self.geometry(grid_coords(query.positions, query.time, self.aabb));
-        let sigma = self.sigma(&geo);
-        let n = geo.dims()[0];
-        let sh = Tensor::<2>::from_data(
-            burn::tensor::TensorData::new(
-                spherical_harmonics::encode(query.dirs, self.sh_degree),
-                [n, self.sh_degree * self.sh_degree],
-            ),
-            &device,
-        );
-        let rgb = nerf_core::profile::span("fwd.color_mlp", || {
-            sigmoid(self.color.forward(Tensor::cat(vec![geo.clone(), sh], 1)))
-        });
-        FieldOutputs {
-            sigma,
-            rgb,
-            extras: self.extras(geo),
-        }
+        self.outputs(geo, query.dirs)
+    }
+
+    /// The density pass's features at the kept samples feed the colour network directly: the
+    /// grid and density network run once per sample, not twice.
+    fn query_kept(
+        &self,
+        query: FieldQuery<'_>,
+        keep: &mut dyn FnMut(Tensor<2>) -> Vec<usize>,
+    ) -> (Vec<usize>, FieldOutputs) {
+        let geo = self.geometry(grid_coords(
+            query.positions.clone(),
+            query.time.clone(),
+            self.aabb,
+        ));
+        let rows = keep(self.sigma(&geo));
+        let dirs: Vec<f32> = rows
+            .iter()
+            .flat_map(|&i| query.dirs[3 * i..3 * i + 3].to_vec())
+            .collect();
+        let outputs = self.outputs(select_rows(geo, &rows), &dirs);
+        (rows, outputs)
     }
 
     fn host_params(&self) -> Vec<Arc<HashGrid>> {
