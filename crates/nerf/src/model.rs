@@ -333,17 +333,8 @@ mod tests {
         let dev = Device::flex();
         let bounds = SceneBounds::object(2.0, 6.0, [[-1.5; 3], [1.5; 3]]);
         let model = StaticModel::new(&cfg, bounds.clone(), &dev);
-        // A fresh grid's features are near zero, so its field hardly varies: spread the tables
-        // (a fixed pseudo-random ±0.5) so that a wrong row would show.
-        for grid in model.fields.field.host_params() {
-            let n = grid.table().len();
-            grid.set_table(
-                (0..n)
-                    .map(|i| ((i * 7919 % 1009) as f32 / 1009.0) - 0.5)
-                    .collect(),
-            )
-            .unwrap();
-        }
+        // Spread tables, so that a wrong row would show.
+        model.fields.field.host_params().iter().for_each(|g| g.spread());
         let got = model.render(&rays, &bg, Pass::Infer, &dev).unwrap();
 
         let field = &model.fields.field;

@@ -556,17 +556,8 @@ mod tests {
         let dev = Device::flex();
         let (_, bounds, mut model, rays) = untrained_scene(&dev);
         let dynamic = model.fields.dynamic.as_ref().unwrap();
-        // A fresh grid's features are near zero, so its gate hardly changes with time: spread
-        // the tables (a fixed pseudo-random ±0.5) so that the frames' gates differ.
-        for grid in dynamic.host_params() {
-            let n = grid.table().len();
-            grid.set_table(
-                (0..n)
-                    .map(|i| ((i * 7919 % 1009) as f32 / 1009.0) - 0.5)
-                    .collect(),
-            )
-            .unwrap();
-        }
+        // Spread tables, so that the frames' gates differ.
+        dynamic.host_params().iter().for_each(|g| g.spread());
         let samples = sample_rays(&rays, &bounds, 8, true, None, None);
         let (pos, dirs) = (samples.positions(&rays), samples.per_sample3(&rays.viewdirs()));
         let gate_at = |t: f32| {

@@ -359,6 +359,16 @@ impl HashGrid {
         Ok(())
     }
 
+    /// Fills the table with a fixed pseudo-random pattern in [−0.5, 0.5). A fresh grid's
+    /// features are near zero, so its field hardly varies from point to point; tests that must
+    /// tell one sample from another spread the tables first.
+    pub fn spread(&self) {
+        let n = self.num_params();
+        *self.table.write().unwrap_or_else(|e| e.into_inner()) = (0..n)
+            .map(|i| ((i * 7919 % 1009) as f32 / 1009.0) - 0.5)
+            .collect();
+    }
+
     /// A copy of the table.
     pub fn table(&self) -> Vec<f32> {
         self.table.read().unwrap_or_else(|e| e.into_inner()).clone()

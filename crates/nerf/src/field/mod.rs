@@ -124,17 +124,8 @@ mod tests {
             cfg.vanilla.width = 32;
             cfg.vanilla.depth = 3;
             let field = base_field(&cfg, [[-1.5; 3], [1.5; 3]], 2, &dev);
-            // A fresh grid's features are near zero, so its field hardly varies: spread the tables
-            // (a fixed pseudo-random ±0.5) so that a wrong row would show.
-            for grid in field.host_params() {
-                let n = grid.table().len();
-                grid.set_table(
-                    (0..n)
-                        .map(|i| ((i * 7919 % 1009) as f32 / 1009.0) - 0.5)
-                        .collect(),
-                )
-                .unwrap();
-            }
+            // Spread tables, so that a wrong row would show.
+            field.host_params().iter().for_each(|g| g.spread());
             let x = || Tensor::<2>::from_data(TensorData::new(positions.clone(), [n, 3]), &dev);
             let full = field.query(FieldQuery::new(x(), &dirs));
             let sigma_all = host(full.sigma.clone());
