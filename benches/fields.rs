@@ -4,7 +4,8 @@
 //!
 //! `cargo bench --bench fields`. The render scene is an occupancy grid holding a thin spherical
 //! shell (what a trained object's grid looks like: a few cells thick around the surface), with
-//! untrained fields, so the static and the dynamic renders march exactly the same samples.
+//! untrained fields, and NSFF renders at the training step (`render_step_scale` 1, not its
+//! default of half), so the static and the dynamic renders march exactly the same samples.
 
 use std::collections::BTreeMap;
 use std::sync::Mutex;
@@ -62,8 +63,10 @@ fn configs() -> (TrainConfig, NsffConfig) {
     let base = TrainConfig::new(Preset::Fast, path.clone(), LoadOptions::default());
     let mut nsff = NsffConfig::new(Preset::Fast, path, LoadOptions::default());
     nsff.dynamic_grid.time_resolution = Some(23);
-    // Same static field and marching for both, so the ratio isolates the dynamic branch.
+    // Same static field and marching for both, so the ratio isolates the dynamic branch (NSFF
+    // renders march at half the training step by default, twice the static render's samples).
     nsff.base = base.clone();
+    nsff.render_step_scale = 1.0;
     (base, nsff)
 }
 
