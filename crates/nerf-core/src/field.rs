@@ -69,12 +69,12 @@ impl<'a> FieldQuery<'a> {
     /// Positions `[K, 3]`, times `[K, 1]` and directions `K·3` of the samples `rows` (no density
     /// noise: this serves inference).
     pub fn rows(&self, rows: &[usize]) -> (Tensor<2>, Option<Tensor<2>>, Vec<f32>) {
-        let dirs = rows
-            .iter()
-            .flat_map(|&i| self.dirs[3 * i..3 * i + 3].to_vec())
-            .collect();
         let pick = |t: &Tensor<2>| select_rows(t.clone(), rows);
-        (pick(&self.positions), self.time.as_ref().map(pick), dirs)
+        (
+            pick(&self.positions),
+            self.time.as_ref().map(pick),
+            rows3(self.dirs, rows),
+        )
     }
 }
 
@@ -115,6 +115,12 @@ impl FieldOutputs {
             ..self
         }
     }
+}
+
+/// The 3-vectors `rows` of a flat host array `S·3` (directions, positions), in that order:
+/// `rows.len()·3`.
+pub fn rows3(v: &[f32], rows: &[usize]) -> Vec<f32> {
+    rows.iter().flat_map(|&i| v[3 * i..3 * i + 3].to_vec()).collect()
 }
 
 /// Rows `rows` of `[S, C]`: `[K, C]`.

@@ -173,12 +173,13 @@ pub fn render_march<F: FieldModule>(
         open_far: false,
         stop_eps,
     };
-    let out = if early_termination && samples.num_samples() > 0 && !pass.is_train() {
+    let terminate = early_termination && samples.num_samples() > 0;
+    let out = if terminate && !pass.is_train() {
         let (reached, fields) = query_reached(field, rays, &samples, options.open_far, stop_eps, device)?;
         samples = reached;
         render_one(rays, &samples, fields, background, options, device)
     } else {
-        if early_termination && samples.num_samples() > 0 {
+        if terminate {
             // Training: a no-grad density pass, then the differentiable query of the survivors.
             let sigma = span("early_stop_density", || {
                 density_host(field, &samples.positions(rays), device)

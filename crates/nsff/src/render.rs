@@ -7,7 +7,7 @@ use burn::module::Module;
 use burn::tensor::{Device, Tensor};
 use nerf::error::{ModelError, read_back};
 use nerf::renderer::{SceneBounds, tensor};
-use nerf_core::field::{Field, FieldOutputs, FieldQuery};
+use nerf_core::field::{Field, FieldOutputs, FieldQuery, rows3};
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::profile::span;
 use nerf_core::rays::{Rays, intersect_aabb};
@@ -265,11 +265,6 @@ pub fn render_direct(
             dynamic_per_ray: evaluated as f64 / r,
         })
     })
-}
-
-/// The 3-vectors `rows` of a flat `N·3` array, in that order: `rows.len()·3`.
-pub(crate) fn rows3(v: &[f32], rows: &[usize]) -> Vec<f32> {
-    rows.iter().flat_map(|&i| v[3 * i..3 * i + 3].to_vec()).collect()
 }
 
 /// Samples whose own gate is at least this are left as they are by the held gate: it could

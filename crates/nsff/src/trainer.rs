@@ -12,7 +12,7 @@ use nerf::model::scene_bounds;
 use nerf::optimizer::Optimizer;
 use nerf::renderer::tensor;
 use nerf_core::error_map::ErrorMap;
-use nerf_core::field::{Field, FieldOutputs, FieldQuery};
+use nerf_core::field::{Field, FieldOutputs, FieldQuery, rows3};
 use nerf_core::metrics::psnr_from_mse;
 use nerf_core::profile::span;
 use nerf_core::rays::Rays;
@@ -26,7 +26,7 @@ use crate::field::{BLEND, DynamicField, FLOW_NEXT, FLOW_PREV, GATE, PROB_NEXT, P
 use crate::geometry;
 use crate::losses;
 use crate::model::{NsffModel, query_dynamic};
-use crate::render::{DYNAMIC_SHARE, query_space_time, render_combined, render_options, rows3, sample_rays};
+use crate::render::{DYNAMIC_SHARE, query_space_time, render_combined, render_options, sample_rays};
 use crate::video::{Video, prepare};
 
 pub use crate::checkpoint::NsffState;

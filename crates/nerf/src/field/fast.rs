@@ -16,7 +16,7 @@ use burn::tensor::activation::sigmoid;
 use burn::tensor::{Device, Tensor};
 use nerf_core::encoding::spherical_harmonics;
 use nerf_core::encoding::{GridEncoding, HashGrid, HashGridConfig, SpaceTimePlanes};
-use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery, select_rows};
+use nerf_core::field::{Density, Extras, Field, FieldOutputs, FieldQuery, rows3, select_rows};
 use nerf_core::mlp::{Mlp, MlpConfig};
 
 use super::grid_coords;
@@ -152,11 +152,7 @@ impl Field for FastField {
             self.aabb,
         ));
         let rows = keep(self.sigma(&geo));
-        let dirs: Vec<f32> = rows
-            .iter()
-            .flat_map(|&i| query.dirs[3 * i..3 * i + 3].to_vec())
-            .collect();
-        let outputs = self.outputs(select_rows(geo, &rows), &dirs);
+        let outputs = self.outputs(select_rows(geo, &rows), &rows3(query.dirs, &rows));
         (rows, outputs)
     }
 
