@@ -23,7 +23,7 @@ use nerf_core::occupancy::OccupancyGrid;
 use nerf_data::{Camera, Intrinsics, LoadOptions, Pose, rays::camera_rays};
 use nsff::config::NsffConfig;
 use nsff::model::{NsffFields, NsffModel, query_dynamic};
-use nsff::render::render_direct;
+use nsff::render::{FlowMap, render_direct};
 use rand::{Rng, SeedableRng, rngs::StdRng};
 
 const SAMPLES: usize = 1 << 16;
@@ -203,7 +203,7 @@ fn render_benches(c: &mut Criterion) {
                 timed(&id, n, || {
                     for start in (0..rays.len()).step_by(16384) {
                         let part = rays.slice(start..(start + 16384).min(rays.len()));
-                        let _ = render_direct(&nsff, &part, 0.5, Some([1.0; 3]), &dev);
+                        let _ = render_direct(&nsff, &part, 0.5, Some([1.0; 3]), FlowMap::Skip, &dev);
                     }
                 })
             })

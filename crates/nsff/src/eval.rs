@@ -12,7 +12,7 @@ use nerf_data::{Dataset, Rays};
 use crate::config::TimeInterp;
 use crate::field::FLOW_NEXT;
 use crate::model::NsffModel;
-use crate::render::{HostRender, render_direct, render_splat};
+use crate::render::{FlowMap, HostRender, render_direct, render_splat};
 
 pub use nerf::eval::quick_views;
 
@@ -38,6 +38,7 @@ pub fn render_at(
     dataset: &Dataset,
     camera: &nerf_data::Camera,
     time: f32,
+    flow_map: FlowMap,
     device: &Device,
 ) -> Result<HostRender> {
     let times = &model.times;
@@ -52,7 +53,7 @@ pub fn render_at(
     } else {
         time
     };
-    render_rays_direct(model, &rays, time, dataset.background, device)
+    render_rays_direct(model, &rays, time, dataset.background, flow_map, device)
 }
 
 /// Renders `rays` (any subset of a camera's pixels) at normalised `time`, querying the
@@ -62,12 +63,13 @@ pub fn render_rays_direct(
     rays: &Rays,
     time: f32,
     background: Option<[f32; 3]>,
+    flow_map: FlowMap,
     device: &Device,
 ) -> Result<HostRender> {
     let mut out = HostRender::default();
     for start in (0..rays.len()).step_by(4096) {
         let part = rays.slice(start..(start + 4096).min(rays.len()));
-        let r = render_direct(model, &part, time, background, device)?;
+        let r = render_direct(model, &part, time, background, flow_map, device)?;
         out.rgb.extend(r.rgb);
         out.depth.extend(r.depth);
         out.opacity.extend(r.opacity);
@@ -99,7 +101,8 @@ pub fn evaluate_with_depth(
     let mut depths = Vec::with_capacity(views.len());
     let result = score_views(dataset, views, with_ssim, save, scene, |v| {
         let view = &dataset.views[v];
-        let r = render_at(model, dataset, &view.camera, view.time.unwrap_or(0.0), device)?;
+        let time = view.time.unwrap_or(0.0);
+        let r = render_at(model, dataset, &view.camera, time, FlowMap::Skip, device)?;
         depths.push(
             r.depth
                 .iter()

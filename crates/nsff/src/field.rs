@@ -201,16 +201,35 @@ impl DynamicField {
         (flow.clone().slice([0..n, 0..3]), flow.slice([0..n, 3..6]))
     }
 
+    /// A full query without the scene flow: every extra but [`FLOW_PREV`] and [`FLOW_NEXT`],
+    /// and a flow network of its own is not run (renders that draw no flow map).
+    pub fn query_without_flow(&self, query: FieldQuery<'_>) -> FieldOutputs {
+        self.query_with(query, false)
+    }
+
+    fn query_with(&self, query: FieldQuery<'_>, with_flow: bool) -> FieldOutputs {
+        debug_assert!(query.time.is_some(), "the dynamic field needs a time");
+        let own_flow = match (&self.flow, &query.time) {
+            (Some(f), Some(t)) if with_flow => Some(f.forward(query.positions.clone(), t.clone())),
+            _ => None,
+        };
+        self.inner
+            .query(query)
+            .map_extras(|e| self.extras(e, with_flow, own_flow))
+    }
+
     /// The named extras from the raw head `[S, 9]` and, with its own network, the raw flow
-    /// `[S, 6]`.
-    fn extras(&self, raw: Extras, own_flow: Option<Tensor<2>>) -> Extras {
+    /// `[S, 6]`; the flows only `with_flow`.
+    fn extras(&self, raw: Extras, with_flow: bool, own_flow: Option<Tensor<2>>) -> Extras {
         let raw = raw.expect(RAW_EXTRA);
         let n = raw.dims()[0];
-        let (prev, next) = self.split_flow(own_flow.unwrap_or_else(|| raw.clone().slice([0..n, 0..6])));
-        let prob = sigmoid(raw.clone().slice([0..n, 6..8]));
         let mut extras = Extras::default();
-        extras.push(FLOW_PREV, prev);
-        extras.push(FLOW_NEXT, next);
+        if with_flow {
+            let (prev, next) = self.split_flow(own_flow.unwrap_or_else(|| raw.clone().slice([0..n, 0..6])));
+            extras.push(FLOW_PREV, prev);
+            extras.push(FLOW_NEXT, next);
+        }
+        let prob = sigmoid(raw.clone().slice([0..n, 6..8]));
         extras.push(PROB_PREV, prob.clone().slice([0..n, 0..1]));
         extras.push(PROB_NEXT, prob.slice([0..n, 1..2]));
         extras.push(GATE, gate(raw, self.time_gate));
@@ -229,12 +248,7 @@ impl Field for DynamicField {
     }
 
     fn query(&self, query: FieldQuery<'_>) -> FieldOutputs {
-        debug_assert!(query.time.is_some(), "the dynamic field needs a time");
-        let own_flow = match (&self.flow, &query.time) {
-            (Some(f), Some(t)) => Some(f.forward(query.positions.clone(), t.clone())),
-            _ => None,
-        };
-        self.inner.query(query).map_extras(|e| self.extras(e, own_flow))
+        self.query_with(query, true)
     }
 
     fn host_params(&self) -> Vec<Arc<HashGrid>> {
@@ -321,6 +335,49 @@ mod tests {
                         "{name}, flow_levels {flow_levels}: {u} vs {w}"
                     );
                 }
+            }
+        }
+    }
+
+    /// A query without the flow answers as a full query in every other output, with the flow
+    /// network and with the shared head, and has no flow.
+    #[test]
+    fn the_query_without_flow_is_the_full_query_less_the_flow() {
+        let device = Device::flex();
+        let aabb = [[-1.0; 3], [1.0; 3]];
+        let n = 48;
+        let pos: Vec<f32> = (0..3 * n).map(|i| ((i * 31 % 89) as f32 / 44.0) - 1.0).collect();
+        let t: Vec<f32> = (0..n).map(|i| (i % 6) as f32 / 5.0).collect();
+        let dirs: Vec<f32> = (0..n).flat_map(|_| [0.8, 0.0, -0.6]).collect();
+        for flow_levels in [4, 0] {
+            let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
+            cfg.flow_levels = flow_levels;
+            let field = DynamicField::new(&cfg, aabb, &device);
+            field.host_params().iter().for_each(|g| g.spread());
+            let x = Tensor::<2>::from_data(burn::tensor::TensorData::new(pos.clone(), [n, 3]), &device);
+            let tt = Tensor::<2>::from_data(burn::tensor::TensorData::new(t.clone(), [n, 1]), &device);
+            let full = field.query(FieldQuery::new(x.clone(), &dirs).at_time(Some(tt.clone())));
+            let less = field.query_without_flow(FieldQuery::new(x, &dirs).at_time(Some(tt)));
+            assert!(less.extras.get(FLOW_PREV).is_none() && less.extras.get(FLOW_NEXT).is_none());
+            assert!(full.extras.get(FLOW_NEXT).is_some());
+            let pairs = [
+                ("sigma", full.sigma, less.sigma),
+                ("rgb", full.rgb, less.rgb),
+                (
+                    PROB_PREV,
+                    full.extras.expect(PROB_PREV),
+                    less.extras.expect(PROB_PREV),
+                ),
+                (
+                    PROB_NEXT,
+                    full.extras.expect(PROB_NEXT),
+                    less.extras.expect(PROB_NEXT),
+                ),
+                (GATE, full.extras.expect(GATE), less.extras.expect(GATE)),
+            ];
+            for (name, a, b) in pairs {
+                let (a, b) = (read_back(a, name).unwrap(), read_back(b, name).unwrap());
+                assert_eq!(a, b, "{name}, flow_levels {flow_levels}");
             }
         }
     }

@@ -18,6 +18,7 @@ use nsff::config::{DynamicMode, GateBetween, NsffConfig, TimeInterp, check_rende
 use nsff::eval::{evaluate_with_depth, render_at};
 use nsff::export::SpaceTimeVolume;
 use nsff::model::NsffModel;
+use nsff::render::FlowMap;
 use nsff::trainer::{CHECKPOINT, NsffTrainer, load_video};
 
 #[derive(Parser)]
@@ -193,7 +194,7 @@ fn run(cli: Cli) -> Result<()> {
             };
             let views = culling_cameras(&t.dataset, 32, 128);
             let render_depth = |cam: &nerf_data::Camera| {
-                let r = render_at(&t.model, &t.dataset, cam, time, &t.device)?;
+                let r = render_at(&t.model, &t.dataset, cam, time, FlowMap::Skip, &t.device)?;
                 Ok((r.depth, r.opacity))
             };
             run_mesh_export(
@@ -220,6 +221,7 @@ fn run(cli: Cli) -> Result<()> {
                     &rays,
                     t.model.times[k],
                     t.dataset.background,
+                    FlowMap::Skip,
                     &t.device,
                 )?;
                 cloud.add_rendered(&rays, &r.rgb, &r.depth, &r.opacity, args.min_opacity);
@@ -451,7 +453,7 @@ fn render_pairs(t: &Run, pairs: &[(Camera, f32)], out: &Path, gif: &str) -> Resu
     }
     let bar = indicatif::ProgressBar::new(pairs.len() as u64);
     for (k, (cam, time)) in pairs.iter().enumerate() {
-        let r = render_at(&t.model, &t.dataset, cam, *time, &t.device)?;
+        let r = render_at(&t.model, &t.dataset, cam, *time, FlowMap::Draw, &t.device)?;
         let (w, h) = (cam.intrinsics.width, cam.intrinsics.height);
         let name = format!("{k:04}.png");
         if r.dynamic_share.len() == (w * h) as usize {

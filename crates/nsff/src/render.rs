@@ -63,7 +63,8 @@ pub struct HostRender {
     pub opacity: Vec<f32>,
     /// Share of each pixel rendered by the dynamic field (NSFF's M_dd).
     pub dynamic_share: Vec<f32>,
-    /// Expected scene-flow magnitude to the next frame along each ray (scene units).
+    /// Expected scene-flow magnitude to the next frame along each ray (scene units); empty when
+    /// the render skipped it ([`FlowMap::Skip`]).
     pub flow_magnitude: Vec<f32>,
     /// Dynamic-field evaluations per ray (what the blend-weight skip saves).
     pub dynamic_per_ray: f64,
@@ -136,6 +137,15 @@ pub fn render_combined(
     )
 }
 
+/// Whether a render draws the scene-flow magnitude map ([`HostRender::flow_magnitude`]; the
+/// render command's and the viewer's `flow` channel). Skipping it spares a dynamic field with
+/// its own flow network that network: about 7 % of an eval (BENCHMARKS.md §6).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FlowMap {
+    Skip,
+    Draw,
+}
+
 /// Renders rays at normalised time `time` with the combined model, no gradients. Samples whose
 /// static blend weight is below `blend_skip` skip the dynamic field. With an occupancy grid the
 /// rays march through it.
@@ -144,6 +154,7 @@ pub fn render_direct(
     rays: &Rays,
     time: f32,
     background: Option<[f32; 3]>,
+    flow_map: FlowMap,
     device: &Device,
 ) -> Result<HostRender, ModelError> {
     let plain = device.clone().inner();
@@ -170,7 +181,10 @@ pub fn render_direct(
             depth: zeros.clone(),
             opacity: zeros.clone(),
             dynamic_share: zeros.clone(),
-            flow_magnitude: zeros,
+            flow_magnitude: match flow_map {
+                FlowMap::Draw => zeros,
+                FlowMap::Skip => Vec::new(),
+            },
             ..HostRender::default()
         });
     }
@@ -200,16 +214,21 @@ pub fn render_direct(
         if !keep.is_empty() {
             let kept_pos = rows3(&pos, &keep);
             let (s, c, f, mut g) = span("render_dynamic", || {
-                let dy = query_dynamic(
-                    dynamic,
-                    tensor(kept_pos.clone(), 3, &plain),
-                    time,
-                    &rows3(&dirs, &keep),
-                );
+                let kept_dirs = rows3(&dirs, &keep);
+                let query = FieldQuery::new(tensor(kept_pos.clone(), 3, &plain), &kept_dirs)
+                    .at_time(Some(time_column(time, keep.len(), &plain)));
+                let dy = match flow_map {
+                    FlowMap::Draw => dynamic.query(query),
+                    FlowMap::Skip => dynamic.query_without_flow(query),
+                };
+                let flow = match flow_map {
+                    FlowMap::Draw => read_back(dy.extras.expect(FLOW_NEXT), "scene flow")?,
+                    FlowMap::Skip => Vec::new(),
+                };
                 Ok::<_, ModelError>((
                     read_back(dy.sigma, "dynamic density")?,
                     read_back(dy.rgb, "dynamic colour")?,
-                    read_back(dy.extras.expect(FLOW_NEXT), "scene flow")?,
+                    flow,
                     read_back(dy.extras.expect(GATE), "time gate")?,
                 ))
             })?;
@@ -232,17 +251,22 @@ pub fn render_direct(
                 blend[i] *= g[k];
                 sigma_dy[i] = s[k];
                 rgb_dy[3 * i..3 * i + 3].copy_from_slice(&c[3 * k..3 * k + 3]);
-                flow_mag[i] = (f[3 * k].powi(2) + f[3 * k + 1].powi(2) + f[3 * k + 2].powi(2)).sqrt();
+                if let Some(f) = f.get(3 * k..3 * k + 3) {
+                    flow_mag[i] = (f[0].powi(2) + f[1].powi(2) + f[2].powi(2)).sqrt();
+                }
             }
         }
     }
     let b = tensor(blend, 1, &plain);
+    let mut dynamic_component = Component::new(tensor(sigma_dy, 1, &plain), tensor(rgb_dy, 3, &plain))
+        .blended(b.clone())
+        .with(DYNAMIC_SHARE, Tensor::ones([s_n, 1], &plain));
+    if flow_map == FlowMap::Draw {
+        dynamic_component = dynamic_component.with(FLOW_MAGNITUDE, tensor(flow_mag, 1, &plain));
+    }
     let components = [
-        Component::new(st.sigma, st.rgb).blended(b.clone().neg() + 1.0),
-        Component::new(tensor(sigma_dy, 1, &plain), tensor(rgb_dy, 3, &plain))
-            .blended(b)
-            .with(DYNAMIC_SHARE, Tensor::ones([s_n, 1], &plain))
-            .with(FLOW_MAGNITUDE, tensor(flow_mag, 1, &plain)),
+        Component::new(st.sigma, st.rgb).blended(b.neg() + 1.0),
+        dynamic_component,
     ];
     let r = rays.len().max(1) as f64;
     span("render_composite", || {
@@ -254,13 +278,17 @@ pub fn render_direct(
             render_options(model),
             &plain,
         );
-        let (share, flow) = (out.expect(DYNAMIC_SHARE), out.expect(FLOW_MAGNITUDE));
+        let share = out.expect(DYNAMIC_SHARE);
+        let flow_magnitude = match out.extra(FLOW_MAGNITUDE) {
+            Some(flow) => read_back(flow.clone(), "flow magnitude")?,
+            None => Vec::new(),
+        };
         Ok(HostRender {
             rgb: read_back(out.rgb, "rendered colour")?,
             depth: read_back(out.depth, "rendered depth")?,
             opacity: read_back(out.opacity, "rendered opacity")?,
             dynamic_share: read_back(share, "dynamic share")?,
-            flow_magnitude: read_back(flow, "flow magnitude")?,
+            flow_magnitude,
             samples_per_ray: s_n as f64 / r,
             dynamic_per_ray: evaluated as f64 / r,
         })
@@ -349,7 +377,7 @@ pub fn render_splat(
         .as_ref()
         .filter(|_| !model.settings.static_only);
     let Some(dynamic) = dynamic.map(|d| d.valid()) else {
-        return render_direct(model, &rays, times[i], dataset.background, device);
+        return render_direct(model, &rays, times[i], dataset.background, FlowMap::Draw, device);
     };
     let st_field = model.fields.static_field.valid();
     let (w, h) = (
@@ -523,7 +551,7 @@ mod tests {
             let t = crate::field::time_column(time, samples.num_samples(), &dev);
             let q = query_space_time(&model, dynamic, &rays, &samples, t, &dev);
             let train = render_combined(&model, &rays, &samples, &q, bg, true, &dev);
-            let infer = render_direct(&model, &rays, time, bg, &dev).unwrap();
+            let infer = render_direct(&model, &rays, time, bg, FlowMap::Skip, &dev).unwrap();
             let opacity = host(train.opacity.clone());
             assert!(opacity.iter().sum::<f32>() / opacity.len() as f32 > 0.05);
             for (name, a, b) in [
@@ -538,6 +566,69 @@ mod tests {
             ] {
                 assert_close(&format!("t = {time}, {name}"), &a, &b, 1e-5);
             }
+        }
+    }
+
+    /// Drawing the flow map changes no other channel, and skipping it leaves the map empty: the
+    /// drawn map is Σ w·|flow to the next frame| over the dynamic component's blended weights
+    /// (the training query's flow through the shared render function).
+    #[test]
+    fn the_flow_map_is_drawn_only_when_asked_and_changes_nothing_else() {
+        let dev = Device::flex();
+        let (mut cfg, bounds, _, rays) = untrained_scene(&dev);
+        // With the flow network (the video default) and with the shared head's flow.
+        for flow_levels in [4, 0] {
+            cfg.flow_levels = flow_levels;
+            let mut model = NsffModel::new(&cfg, bounds.clone(), vec![0.0, 0.5, 1.0], true, &dev);
+            model.occupancy = None;
+            model.settings.gate_between = GateBetween::Field;
+            let dynamic = model.fields.dynamic.as_ref().unwrap();
+            assert_eq!(dynamic.flow.is_some(), flow_levels > 0);
+            dynamic.host_params().iter().for_each(|g| g.spread());
+            let bg = Some([0.9f32, 0.5, 0.1]);
+            let time = 0.5;
+            let drawn = render_direct(&model, &rays, time, bg, FlowMap::Draw, &dev).unwrap();
+            let skipped = render_direct(&model, &rays, time, bg, FlowMap::Skip, &dev).unwrap();
+            assert!(skipped.flow_magnitude.is_empty());
+            for (name, a, b) in [
+                ("rgb", &drawn.rgb, &skipped.rgb),
+                ("depth", &drawn.depth, &skipped.depth),
+                ("opacity", &drawn.opacity, &skipped.opacity),
+                ("dynamic share", &drawn.dynamic_share, &skipped.dynamic_share),
+            ] {
+                assert_eq!(a, b, "{name}, flow_levels {flow_levels}");
+            }
+            let samples = sample_rays(&rays, &bounds, cfg.samples, true, None, None);
+            let t = crate::field::time_column(time, samples.num_samples(), &dev);
+            let q = query_space_time(&model, dynamic, &rays, &samples, t, &dev);
+            let next = host(q.dy.extras.expect(FLOW_NEXT));
+            let magnitude: Vec<f32> = next
+                .chunks(3)
+                .map(|f| (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt())
+                .collect();
+            let blend = q.st.extras.expect(BLEND) * q.dy.extras.expect(GATE);
+            let want = render(
+                &rays,
+                &samples,
+                &[
+                    Component::new(q.st.sigma.clone(), q.st.rgb.clone()).blended(blend.clone().neg() + 1.0),
+                    Component::new(q.dy.sigma.clone(), q.dy.rgb.clone())
+                        .blended(blend)
+                        .with(FLOW_MAGNITUDE, tensor(magnitude, 1, &dev)),
+                ],
+                &Background::from_option(bg),
+                render_options(&model),
+                &dev,
+            );
+            let want = host(want.expect(FLOW_MAGNITUDE));
+            // The check can fail: an untrained flow's map is not zero.
+            assert!(want.iter().any(|m| *m > 1e-4), "a zero flow map tests nothing");
+            assert_close(
+                &format!("flow map, flow_levels {flow_levels}"),
+                &want,
+                &drawn.flow_magnitude,
+                1e-5,
+            );
         }
     }
 
@@ -608,9 +699,9 @@ mod tests {
         );
         assert!(skipped > 0, "no sample above the threshold would have risen");
         let bg = Some([0.9f32, 0.5, 0.1]);
-        let held = render_direct(&model, &rays, 0.5, bg, &dev).unwrap();
+        let held = render_direct(&model, &rays, 0.5, bg, FlowMap::Skip, &dev).unwrap();
         model.settings.gate_between = GateBetween::Field;
-        let field = render_direct(&model, &rays, 0.5, bg, &dev).unwrap();
+        let field = render_direct(&model, &rays, 0.5, bg, FlowMap::Skip, &dev).unwrap();
         assert_eq!(held.rgb, field.rgb, "on a frame the rule changes nothing");
     }
 
@@ -639,12 +730,12 @@ mod tests {
             render_options(&model),
             &dev,
         );
-        let combined = render_direct(&model, &rays, 0.5, bg, &dev).unwrap();
+        let combined = render_direct(&model, &rays, 0.5, bg, FlowMap::Skip, &dev).unwrap();
         model.settings.static_only = true;
-        let static_only = render_direct(&model, &rays, 0.5, bg, &dev).unwrap();
+        let static_only = render_direct(&model, &rays, 0.5, bg, FlowMap::Skip, &dev).unwrap();
         model.settings.static_only = false;
         model.fields.dynamic = None;
-        let no_dynamic = render_direct(&model, &rays, 0.5, bg, &dev).unwrap();
+        let no_dynamic = render_direct(&model, &rays, 0.5, bg, FlowMap::Skip, &dev).unwrap();
         for (name, got) in [("--static-only", &static_only), ("no dynamic field", &no_dynamic)] {
             assert_close(name, &host(want.rgb.clone()), &got.rgb, 1e-5);
             assert_close(name, &host(want.opacity.clone()), &got.opacity, 1e-5);
@@ -681,7 +772,15 @@ mod tests {
         model.occupancy = None;
         let splat = render_splat(&model, &dataset, &camera, 1.0, &device).unwrap();
         let rays = dataset.rays_for(&camera, 0..16 * 12);
-        let direct = render_direct(&model, &rays, times[1], dataset.background, &device).unwrap();
+        let direct = render_direct(
+            &model,
+            &rays,
+            times[1],
+            dataset.background,
+            FlowMap::Skip,
+            &device,
+        )
+        .unwrap();
         let mean_opacity = direct.opacity.iter().sum::<f32>() / direct.opacity.len() as f32;
         assert!(
             mean_opacity > 0.05,

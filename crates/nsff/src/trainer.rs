@@ -528,6 +528,7 @@ impl NsffTrainer {
                 &rays,
                 v.times[k],
                 v.dataset.background,
+                crate::render::FlowMap::Skip,
                 &self.device,
             )?;
             let target = pixel_colours(view, &pixels);

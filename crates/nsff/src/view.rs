@@ -9,6 +9,7 @@ use nerf_data::{Camera, Dataset, Image};
 
 use crate::eval::render_at;
 use crate::model::NsffModel;
+use crate::render::FlowMap;
 
 pub struct SpaceTimeView<'a> {
     pub model: &'a NsffModel,
@@ -31,7 +32,11 @@ impl ViewModel for SpaceTimeView<'_> {
 
     fn render(&self, camera: &Camera, time: f32, channel: &str) -> Result<Image> {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
-        let r = render_at(self.model, self.dataset, camera, time, self.device)?;
+        let flow_map = match channel {
+            "flow" => FlowMap::Draw,
+            _ => FlowMap::Skip,
+        };
+        let r = render_at(self.model, self.dataset, camera, time, flow_map, self.device)?;
         let n = (w * h) as usize;
         Ok(match channel {
             "depth" => depth_image(w, h, &r.depth, &r.opacity, None),
