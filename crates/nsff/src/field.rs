@@ -301,24 +301,38 @@ mod tests {
     use nerf::config::Preset;
     use nerf_core::readback::read_back;
 
+    const AABB: [[f32; 3]; 2] = [[-1.0; 3], [1.0; 3]];
+
+    /// `n` points spread over [−1, 1]³ `[n, 3]`, their times in [0, 1] `[n, 1]`, and one unit
+    /// direction for all (`n·3`).
+    fn probe(n: usize, device: &Device) -> (Tensor<2>, Tensor<2>, Vec<f32>) {
+        let pos: Vec<f32> = (0..3 * n).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
+        let t: Vec<f32> = (0..n).map(|i| (i % 7) as f32 / 6.0).collect();
+        let x = Tensor::<2>::from_data(burn::tensor::TensorData::new(pos, [n, 3]), device);
+        let tt = Tensor::<2>::from_data(burn::tensor::TensorData::new(t, [n, 1]), device);
+        (x, tt, (0..n).flat_map(|_| [0.0, 0.6, -0.8]).collect())
+    }
+
+    /// A fast dynamic field with `flow_levels` levels of its own flow grid (none: the shared
+    /// head's flow) and six time cells.
+    fn field_with_flow(flow_levels: usize, device: &Device) -> DynamicField {
+        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
+        cfg.dynamic_grid.time_resolution = Some(6);
+        cfg.flow_levels = flow_levels;
+        DynamicField::new(&cfg, AABB, device)
+    }
+
     /// The flow-only query (a chained warp's hops) gives what a full query's flow outputs give
     /// at the same points and times, with the flow grid and with the shared head.
     #[test]
     fn the_flow_only_query_matches_the_full_query() {
         let device = Device::flex();
-        let aabb = [[-1.0; 3], [1.0; 3]];
         let n = 64;
-        let pos: Vec<f32> = (0..3 * n).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
-        let t: Vec<f32> = (0..n).map(|i| (i % 7) as f32 / 6.0).collect();
-        let dirs: Vec<f32> = (0..n).flat_map(|_| [0.0, 0.6, -0.8]).collect();
+        let (x, tt, dirs) = probe(n, &device);
         for flow_levels in [4, 0] {
-            let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
-            cfg.dynamic_grid.time_resolution = Some(6);
-            cfg.flow_levels = flow_levels;
-            let field = DynamicField::new(&cfg, aabb, &device);
+            let field = field_with_flow(flow_levels, &device);
             assert_eq!(field.flow.is_some(), flow_levels > 0);
-            let x = Tensor::<2>::from_data(burn::tensor::TensorData::new(pos.clone(), [n, 3]), &device);
-            let tt = Tensor::<2>::from_data(burn::tensor::TensorData::new(t.clone(), [n, 1]), &device);
+            let (x, tt) = (x.clone(), tt.clone());
             let full = field.query(FieldQuery::new(x.clone(), &dirs).at_time(Some(tt.clone())));
             let (prev, next) = field.scene_flow(x, tt, &dirs);
             for (alone, name) in [(prev, FLOW_PREV), (next, FLOW_NEXT)] {
@@ -344,18 +358,12 @@ mod tests {
     #[test]
     fn the_query_without_flow_is_the_full_query_less_the_flow() {
         let device = Device::flex();
-        let aabb = [[-1.0; 3], [1.0; 3]];
         let n = 48;
-        let pos: Vec<f32> = (0..3 * n).map(|i| ((i * 31 % 89) as f32 / 44.0) - 1.0).collect();
-        let t: Vec<f32> = (0..n).map(|i| (i % 6) as f32 / 5.0).collect();
-        let dirs: Vec<f32> = (0..n).flat_map(|_| [0.8, 0.0, -0.6]).collect();
+        let (x, tt, dirs) = probe(n, &device);
         for flow_levels in [4, 0] {
-            let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
-            cfg.flow_levels = flow_levels;
-            let field = DynamicField::new(&cfg, aabb, &device);
+            let field = field_with_flow(flow_levels, &device);
             field.host_params().iter().for_each(|g| g.spread());
-            let x = Tensor::<2>::from_data(burn::tensor::TensorData::new(pos.clone(), [n, 3]), &device);
-            let tt = Tensor::<2>::from_data(burn::tensor::TensorData::new(t.clone(), [n, 1]), &device);
+            let (x, tt) = (x.clone(), tt.clone());
             let full = field.query(FieldQuery::new(x.clone(), &dirs).at_time(Some(tt.clone())));
             let less = field.query_without_flow(FieldQuery::new(x, &dirs).at_time(Some(tt)));
             assert!(less.extras.get(FLOW_PREV).is_none() && less.extras.get(FLOW_NEXT).is_none());
@@ -387,17 +395,13 @@ mod tests {
     #[test]
     fn without_the_time_gate_the_gate_reads_one() {
         let device = Device::flex();
-        let aabb = [[-1.0; 3], [1.0; 3]];
         let n = 32;
-        let pos: Vec<f32> = (0..3 * n).map(|i| ((i * 29 % 97) as f32 / 48.0) - 1.0).collect();
-        let t: Vec<f32> = (0..n).map(|i| (i % 5) as f32 / 4.0).collect();
-        let dirs: Vec<f32> = (0..n).flat_map(|_| [0.6, 0.0, 0.8]).collect();
+        let (x, tt, dirs) = probe(n, &device);
         for learnt in [true, false] {
             let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
             cfg.time_gate = learnt;
-            let field = DynamicField::new(&cfg, aabb, &device);
-            let x = Tensor::<2>::from_data(burn::tensor::TensorData::new(pos.clone(), [n, 3]), &device);
-            let tt = Tensor::<2>::from_data(burn::tensor::TensorData::new(t.clone(), [n, 1]), &device);
+            let field = DynamicField::new(&cfg, AABB, &device);
+            let (x, tt) = (x.clone(), tt.clone());
             let full = field.query(FieldQuery::new(x.clone(), &dirs).at_time(Some(tt.clone())));
             let dens = field.density(x, Some(tt));
             for g in [full.extras.expect(GATE), dens.extras.expect(GATE)] {
