@@ -221,9 +221,14 @@ pub fn query_dynamic(
     time: f32,
     dirs: &[f32],
 ) -> nerf_core::field::FieldOutputs {
+    field.query(query_at_time(positions, time, dirs))
+}
+
+/// The query of `[S, 3]` positions and `S·3` unit directions, all at one normalised time.
+pub fn query_at_time(positions: Tensor<2>, time: f32, dirs: &[f32]) -> nerf_core::field::FieldQuery<'_> {
     let n = positions.dims()[0];
     let t = crate::field::time_column(time, n, &positions.device());
-    field.query(nerf_core::field::FieldQuery::new(positions, dirs).at_time(Some(t)))
+    nerf_core::field::FieldQuery::new(positions, dirs).at_time(Some(t))
 }
 
 #[cfg(test)]

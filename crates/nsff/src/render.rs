@@ -20,7 +20,7 @@ use crate::config::GateBetween;
 use crate::eval::frame_position;
 use crate::field::{BLEND, DynamicField, FLOW_NEXT, FLOW_PREV, GATE, time_column};
 use crate::geometry;
-use crate::model::{NsffModel, query_dynamic};
+use crate::model::{NsffModel, query_at_time, query_dynamic};
 
 /// Samples along rays. With an occupancy grid (object scenes, fast preset) the rays march through
 /// it and skip empty space; otherwise `n` stratified samples per ray in [near, far], clipped to
@@ -215,15 +215,14 @@ pub fn render_direct(
             let kept_pos = rows3(&pos, &keep);
             let (s, c, f, mut g) = span("render_dynamic", || {
                 let kept_dirs = rows3(&dirs, &keep);
-                let query = FieldQuery::new(tensor(kept_pos.clone(), 3, &plain), &kept_dirs)
-                    .at_time(Some(time_column(time, keep.len(), &plain)));
+                let query = query_at_time(tensor(kept_pos.clone(), 3, &plain), time, &kept_dirs);
                 let dy = match flow_map {
                     FlowMap::Draw => dynamic.query(query),
                     FlowMap::Skip => dynamic.query_without_flow(query),
                 };
-                let flow = match flow_map {
-                    FlowMap::Draw => read_back(dy.extras.expect(FLOW_NEXT), "scene flow")?,
-                    FlowMap::Skip => Vec::new(),
+                let flow = match dy.extras.get(FLOW_NEXT) {
+                    Some(next) => read_back(next.clone(), "scene flow")?,
+                    None => Vec::new(),
                 };
                 Ok::<_, ModelError>((
                     read_back(dy.sigma, "dynamic density")?,
