@@ -27,8 +27,10 @@
 //!   neighbour).
 //! - `scene.json`: the full [`Scene`], reloadable with [`Scene::load`].
 //! - with [`SynthConfig::mono_disparity`], video presets: `disp/train/r_000.npy`, a simulated
-//!   monocular disparity (float32 H×W, unknown scale and shift per frame, smoothed and noisy).
+//!   monocular disparity (float32 H×W, unknown scale and shift per frame, smoothed and noisy;
+//!   [`DisparityErrors::Rough`] adds errors no scale and shift remove).
 
+pub mod disparity;
 mod family;
 mod presets;
 mod scene;
@@ -39,6 +41,7 @@ mod writer;
 use std::fmt;
 use std::str::FromStr;
 
+pub use disparity::DisparityErrors;
 pub use family::{Backdrop, MoverMotion, PathKind, Speed, Variation};
 pub use scene::{Light, Motion, Object, SCENE_FILE, Scene, Shape, Split, SynthView, ViewKind};
 pub use texture::{Pattern, Texture};
@@ -136,9 +139,9 @@ pub struct SynthConfig {
     /// Held-out views. Video presets split them into off-path cameras at training times (the
     /// first half, rounded up) and on-path cameras at mid-frame times (the rest).
     pub test_views: usize,
-    /// Video presets: also write a simulated monocular disparity per training frame
-    /// (`disp/train/r_000.npy`, see [`Scene::write_mono_disparity`]).
-    pub mono_disparity: bool,
+    /// Video presets: also write a simulated monocular disparity per training frame with these
+    /// errors (`disp/train/r_000.npy`, see [`disparity::simulate`]).
+    pub mono_disparity: Option<DisparityErrors>,
 }
 
 impl SynthConfig {
@@ -159,7 +162,7 @@ impl SynthConfig {
             height,
             frames,
             test_views,
-            mono_disparity: false,
+            mono_disparity: None,
         }
     }
 

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::disparity::{DisparityErrors, simulate};
 use super::family::Variation;
 use super::scene::{SCENE_FILE, Scene, Split, SynthView};
 use super::{Preset, SynthConfig};
@@ -34,8 +35,8 @@ pub fn generate(cfg: &SynthConfig, out_dir: &Path) -> Result<GenerateSummary> {
         .map_err(|m| DataError::invalid(out_dir, format!("invalid synthetic scene config: {m}")))?;
     let scene = Scene::from_config(cfg);
     let mut summary = scene.write(out_dir)?;
-    if cfg.mono_disparity && cfg.preset.is_video() {
-        summary.files_written += scene.write_mono_disparity(out_dir, cfg.seed)?;
+    if let (Some(errors), true) = (cfg.mono_disparity, cfg.preset.is_video()) {
+        summary.files_written += scene.write_mono_disparity(out_dir, cfg.seed, errors)?;
     }
     Ok(summary)
 }
@@ -159,15 +160,11 @@ impl Scene {
         })
     }
 
-    /// A stand-in for a monocular depth network (NSFF uses MiDaS), written after [`Scene::write`]
-    /// from its ground-truth depth: `disp/train/<name>.npy` per training frame, the true inverse
-    /// depth (0 where no surface is hit) smoothed by a 3×3 box filter, then under a per-frame
-    /// scale in [0.5, 2] (log-uniform) and shift in [−0.1, 0.1], plus Gaussian noise of 5 % of
-    /// the frame's mean disparity. What the depth prior may rely on is then only what a real
-    /// one gives: the ordering and relative spacing of depths within a frame. Returns the
-    /// number of files written.
-    pub fn write_mono_disparity(&self, out_dir: &Path, seed: u64) -> Result<usize> {
-        use rand::{Rng, SeedableRng, rngs::StdRng};
+    /// A simulated monocular disparity per training frame ([`crate::disparity::simulate`] with
+    /// `errors`), written after [`Scene::write`] from its ground-truth depth to
+    /// `disp/train/<name>.npy`. Returns the number of files written.
+    pub fn write_mono_disparity(&self, out_dir: &Path, seed: u64, errors: DisparityErrors) -> Result<usize> {
+        use rand::{SeedableRng, rngs::StdRng};
         let (w, h) = (self.width as usize, self.height as usize);
         let train: Vec<&SynthView> = self.views_in(Split::Train).collect();
         let written: Vec<usize> = train
@@ -182,30 +179,8 @@ impl Scene {
                         format!("expected {h}x{w} depths"),
                     ));
                 }
-                let inv: Vec<f64> = depth
-                    .iter()
-                    .map(|&z| if z > 0.0 { 1.0 / z as f64 } else { 0.0 })
-                    .collect();
                 let mut rng = StdRng::seed_from_u64(seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ k as u64);
-                let scale = 2f64.powf(rng.random_range(-1.0..=1.0));
-                let shift = rng.random_range(-0.1..=0.1);
-                let mean = inv.iter().sum::<f64>() / inv.len() as f64;
-                let mut disp = Vec::with_capacity(w * h);
-                for y in 0..h {
-                    for x in 0..w {
-                        let (mut sum, mut n) = (0.0, 0.0);
-                        for yy in y.saturating_sub(1)..(y + 2).min(h) {
-                            for xx in x.saturating_sub(1)..(x + 2).min(w) {
-                                sum += inv[yy * w + xx];
-                                n += 1.0;
-                            }
-                        }
-                        // Box-Muller: one standard normal from two uniforms.
-                        let (u1, u2): (f64, f64) = (rng.random_range(f64::EPSILON..1.0), rng.random());
-                        let noise = (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos();
-                        disp.push((scale * (sum / n + 0.05 * mean * noise) + shift) as f32);
-                    }
-                }
+                let disp = simulate(&depth, (w, h), errors, &mut rng);
                 let path = out_dir
                     .join("disp")
                     .join(view.split.as_str())

@@ -709,7 +709,7 @@ fn the_blender_loader_reads_the_generated_folder() {
 fn mono_disparity_is_affine_in_true_inverse_depth_and_loads_as_a_prior() {
     let dir = TempDir::new("disp");
     let mut cfg = small(Preset::Dynamic).with_seed(4);
-    cfg.mono_disparity = true;
+    cfg.mono_disparity = Some(nerf_synth::DisparityErrors::Clean);
     generate(&cfg, &dir.0).unwrap();
     let opts = nerf_data::LoadOptions::default();
     let ds = nerf_data::load::load_video(&dir.0, &opts).unwrap();

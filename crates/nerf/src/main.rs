@@ -80,10 +80,20 @@ enum Command {
         #[arg(long)]
         test_views: Option<usize>,
         /// Video presets: also write disp/ with a simulated monocular disparity per training
-        /// frame (true inverse depth, smoothed, noisy, unknown scale and shift), NSFF's depth prior.
-        #[arg(long)]
-        mono_disparity: bool,
+        /// frame, NSFF's depth prior: `clean` (the default when given without a value) is the
+        /// true inverse depth, smoothed, noisy, under an unknown scale and shift; `rough` adds
+        /// errors no scale and shift remove (blurred edges, depths spaced wrong, a smooth field
+        /// across the image), as a real monocular network makes.
+        #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "clean", value_name = "ERRORS")]
+        mono_disparity: Option<DisparityArg>,
     },
+}
+
+/// `nerf synth --mono-disparity`'s errors ([`nerf_synth::DisparityErrors`]).
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum DisparityArg {
+    Clean,
+    Rough,
 }
 
 #[derive(Subcommand)]
@@ -236,7 +246,10 @@ fn run(cli: Cli) -> Result<()> {
             mono_disparity,
         } => {
             let mut cfg = nerf_synth::SynthConfig::seeded(preset, seed);
-            cfg.mono_disparity = mono_disparity;
+            cfg.mono_disparity = mono_disparity.map(|d| match d {
+                DisparityArg::Clean => nerf_synth::DisparityErrors::Clean,
+                DisparityArg::Rough => nerf_synth::DisparityErrors::Rough,
+            });
             if let Some(s) = size {
                 cfg = cfg.with_size(s[0], s[1]);
             }

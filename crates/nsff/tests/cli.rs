@@ -24,7 +24,7 @@ fn temp(name: &str) -> PathBuf {
 fn video(dir: &Path, preset: Preset, (w, h): (u32, u32), frames: usize) -> PathBuf {
     let data = dir.join(preset.as_str());
     let mut cfg = SynthConfig::new(preset).with_size(w, h).with_views(frames, 4);
-    cfg.mono_disparity = true;
+    cfg.mono_disparity = Some(nerf_synth::DisparityErrors::Clean);
     nerf_synth::generate(&cfg, &data).unwrap();
     data
 }
