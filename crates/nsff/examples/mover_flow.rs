@@ -15,11 +15,14 @@
 //!   difference. Printed: how far the depth error moves the still point, and the motion part's
 //!   cosine to the true one when the still point sits at the true surface and at the rendered one.
 
+mod common;
+
 use std::path::Path;
 
-use burn::module::Module;
+use common::GeneratedRun;
 use nerf_data::camera::Camera;
 use nerf_data::math::{dot, norm};
+use nsff::eval::{SurfaceHits, surface_hits};
 use nsff::render::FlowMap;
 
 /// Pixel coordinates of world point `p` in `camera`; the image centre for a point behind it
@@ -64,13 +67,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err("usage: mover_flow RUN [RUN ...]".into());
     }
     for run in &runs {
-        let t = nsff::checkpoint::load_trained(Path::new(run))?;
-        let cfg = &t.state.config;
-        let ds = nerf_data::load::load_video(&cfg.base.data, &cfg.base.load)?;
-        let (frames, _) = nsff::video::check_frames(&ds)?;
-        let scene = nerf::diagnosis::load_scene(&cfg.base.data)?.ok_or("not a generated scene")?;
-        let dynamic = t.model.fields.dynamic.as_ref().ok_or("no dynamic field")?.valid();
-        let moving = scene.moving_objects();
+        let GeneratedRun {
+            trained: t,
+            dataset: ds,
+            frames,
+            scene,
+            dynamic,
+            moving,
+        } = GeneratedRun::load(Path::new(run))?;
         let plain = t.device.clone().inner();
         let mut tally = Tally::default();
         for k in 0..frames.len().saturating_sub(1) {
@@ -83,33 +87,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let cache = Path::new(run).join(format!("flow_cache/{k:05}_fwd.npz"));
             let prior = nerf_data::video::read_flow(&cache, w, h)?;
             let (exact, _) = scene.optical_flow(camera, f64::from(t0), next, f64::from(t1));
-            let all = nerf_data::rays::pixel_rays(camera, 0..(w * h) as u32);
-            let (mut pixels, mut hits) = (Vec::new(), Vec::new());
-            for p in 0..w * h {
-                let (o, d) = (all.origin(p).map(f64::from), all.direction(p).map(f64::from));
-                if let Some(hit) = scene
-                    .intersect(o, d, f64::from(t0))
-                    .filter(|hit| moving.contains(&hit.object))
-                {
-                    pixels.push(p as u32);
-                    hits.push(hit);
-                }
-            }
-            if hits.is_empty() {
-                continue;
-            }
+            let SurfaceHits {
+                hits,
+                pixels,
+                points: true_points,
+                dirs,
+            } = surface_hits(&scene, camera, t0, 1, |hit| moving.contains(&hit.object));
             let rays = nerf_data::rays::pixel_rays(camera, pixels.iter().copied());
             let out =
                 nsff::eval::render_rays_direct(&t.model, &rays, t0, ds.background, FlowMap::Skip, &t.device)?;
-            let (mut true_points, mut rendered_points, mut dirs) = (Vec::new(), Vec::new(), Vec::new());
+            let mut rendered_points = Vec::with_capacity(3 * hits.len());
             for (i, hit) in hits.iter().enumerate() {
                 let depth = out.depth[i] / out.opacity[i].max(1e-3);
                 let (o, d) = (rays.origin(i), rays.direction(i));
                 tally.depth_error.push(((f64::from(depth) - hit.t) / hit.t).abs());
-                true_points.extend(hit.point.map(|c| c as f32));
                 rendered_points.extend((0..3).map(|c| o[c] + depth * d[c]));
-                let l = d.iter().map(|c| c * c).sum::<f32>().sqrt();
-                dirs.extend(d.map(|c| c / l));
             }
             let forward = |points: Vec<f32>| -> Result<Vec<f32>, Box<dyn std::error::Error>> {
                 let time = nsff::field::time_column(t0, hits.len(), &plain);

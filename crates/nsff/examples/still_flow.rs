@@ -9,10 +9,11 @@
 //! still-matter gate exp(−(m/ε)²) keeps above one half at several ε: a gate that separates them
 //! keeps most still points and few moving ones.
 
+mod common;
+
 use std::path::Path;
 
-use burn::module::Module;
-
+use common::GeneratedRun;
 use nsff::field::{FLOW_NEXT, FLOW_PREV};
 
 fn quantile(sorted: &[f32], q: f64) -> f32 {
@@ -26,13 +27,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let scales = [2.5e-4f32, 5e-4, 1e-3, 2e-3, 4e-3];
     for run in &runs {
-        let t = nsff::checkpoint::load_trained(Path::new(run))?;
-        let cfg = &t.state.config;
-        let ds = nerf_data::load::load_video(&cfg.base.data, &cfg.base.load)?;
-        let (frames, _) = nsff::video::check_frames(&ds)?;
-        let scene = nerf::diagnosis::load_scene(&cfg.base.data)?.ok_or("not a generated scene")?;
-        let dynamic = t.model.fields.dynamic.as_ref().ok_or("no dynamic field")?.valid();
-        let moving = scene.moving_objects();
+        let GeneratedRun {
+            trained: t,
+            dataset: ds,
+            frames,
+            scene,
+            dynamic,
+            moving,
+        } = GeneratedRun::load(Path::new(run))?;
         let extent = t.model.bounds.extent();
         let plain = t.device.clone().inner();
         let (mut still, mut movers) = (Vec::new(), Vec::new());

@@ -186,6 +186,8 @@ pub struct SceneFlowError {
 /// `time` in a generated scene, keeping those `keep` accepts.
 pub struct SurfaceHits {
     pub hits: Vec<nerf_synth::RayHit>,
+    /// The pixel (row-major index) of each hit.
+    pub pixels: Vec<u32>,
     /// `[hits.len() * 3]`: the hit points, f32 for the field.
     pub points: Vec<f32>,
     /// `[hits.len() * 3]`: unit ray directions.
@@ -200,10 +202,13 @@ pub fn surface_hits(
     stride: usize,
     keep: impl Fn(&nerf_synth::RayHit) -> bool,
 ) -> SurfaceHits {
-    let pixels = (0..camera.intrinsics.num_pixels() as u32).step_by(stride.max(1));
-    let rays = nerf_data::rays::pixel_rays(camera, pixels);
+    let pixels: Vec<u32> = (0..camera.intrinsics.num_pixels() as u32)
+        .step_by(stride.max(1))
+        .collect();
+    let rays = nerf_data::rays::pixel_rays(camera, pixels.iter().copied());
     let mut out = SurfaceHits {
         hits: Vec::new(),
+        pixels: Vec::new(),
         points: Vec::new(),
         dirs: Vec::new(),
     };
@@ -214,6 +219,7 @@ pub fn surface_hits(
         };
         out.points.extend(hit.point.map(|c| c as f32));
         out.dirs.extend(normalize(d).map(|c| c as f32));
+        out.pixels.push(pixels[r]);
         out.hits.push(hit);
     }
     out
@@ -247,8 +253,9 @@ pub fn scene_flow_error(
         let (t0, t1) = (times[k], times[k + 1]);
         let camera = &ds.views[frames[k]].camera;
         let next_camera = &ds.views[frames[k + 1]].camera;
-        let SurfaceHits { hits, points, dirs } =
-            surface_hits(scene, camera, t0, stride, |h| moving.contains(&h.object));
+        let SurfaceHits {
+            hits, points, dirs, ..
+        } = surface_hits(scene, camera, t0, stride, |h| moving.contains(&h.object));
         if hits.is_empty() {
             continue;
         }
