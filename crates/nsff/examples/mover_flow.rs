@@ -67,19 +67,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err("usage: mover_flow RUN [RUN ...]".into());
     }
     for run in &runs {
-        let GeneratedRun {
-            trained: t,
-            dataset: ds,
-            frames,
-            scene,
-            dynamic,
-            moving,
-        } = GeneratedRun::load(Path::new(run))?;
+        let g = GeneratedRun::load(Path::new(run))?;
+        let (t, ds, scene, dynamic, moving) = (&g.trained, &g.dataset, &g.scene, &g.dynamic, &g.moving);
         let plain = t.device.clone().inner();
         let mut tally = Tally::default();
-        for k in 0..frames.len().saturating_sub(1) {
+        for k in 0..g.frames.len().saturating_sub(1) {
             let (t0, t1) = (t.model.times[k], t.model.times[k + 1]);
-            let (camera, next) = (&ds.views[frames[k]].camera, &ds.views[frames[k + 1]].camera);
+            let (camera, next) = (&ds.views[g.frames[k]].camera, &ds.views[g.frames[k + 1]].camera);
             let (w, h) = (
                 camera.intrinsics.width as usize,
                 camera.intrinsics.height as usize,
@@ -92,7 +86,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 pixels,
                 points: true_points,
                 dirs,
-            } = surface_hits(&scene, camera, t0, 1, |hit| moving.contains(&hit.object));
+            } = surface_hits(scene, camera, t0, 1, |hit| moving.contains(&hit.object));
             let rays = nerf_data::rays::pixel_rays(camera, pixels.iter().copied());
             let out =
                 nsff::eval::render_rays_direct(&t.model, &rays, t0, ds.background, FlowMap::Skip, &t.device)?;

@@ -27,28 +27,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let scales = [2.5e-4f32, 5e-4, 1e-3, 2e-3, 4e-3];
     for run in &runs {
-        let GeneratedRun {
-            trained: t,
-            dataset: ds,
-            frames,
-            scene,
-            dynamic,
-            moving,
-        } = GeneratedRun::load(Path::new(run))?;
+        let g = GeneratedRun::load(Path::new(run))?;
+        let (t, ds, scene, dynamic, moving) = (&g.trained, &g.dataset, &g.scene, &g.dynamic, &g.moving);
         let extent = t.model.bounds.extent();
         let plain = t.device.clone().inner();
         let (mut still, mut movers) = (Vec::new(), Vec::new());
-        for (k, &view) in frames.iter().enumerate() {
+        for (k, &view) in g.frames.iter().enumerate() {
             let time = t.model.times[k];
             let camera = &ds.views[view].camera;
-            let surfaces = nsff::eval::surface_hits(&scene, camera, time, 4, |_| true);
+            let surfaces = nsff::eval::surface_hits(scene, camera, time, 4, |_| true);
             if surfaces.hits.is_empty() {
                 continue;
             }
             let is_moving: Vec<bool> = surfaces.hits.iter().map(|h| moving.contains(&h.object)).collect();
             let (points, dirs) = (surfaces.points, surfaces.dirs);
             let x = nerf::renderer::tensor(points, 3, &plain);
-            let out = nsff::model::query_dynamic(&dynamic, x, time, &dirs);
+            let out = nsff::model::query_dynamic(dynamic, x, time, &dirs);
             let read = |name| nerf_core::readback::read_back(out.extras.expect(name), "scene flow");
             let (next, prev) = (read(FLOW_NEXT)?, read(FLOW_PREV)?);
             for (i, &m) in is_moving.iter().enumerate() {
