@@ -285,3 +285,42 @@ fn bad_inputs_fail_with_a_clear_message() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `nerf synth --mono-disparity [clean|rough]`: the flag alone writes the clean disparity, `rough`
+/// writes another one for the same images, and an unknown kind is refused with the choices.
+#[test]
+fn synth_writes_a_clean_or_a_rough_disparity() {
+    let dir = temp("disparity");
+    let video = |out: &Path, errors: &[&str]| {
+        let mut cmd = nerf();
+        cmd.arg("synth").args(errors).args([
+            "--preset",
+            "dynamic",
+            "--size",
+            "32",
+            "24",
+            "--frames",
+            "3",
+            "--test-views",
+            "2",
+        ]);
+        cmd.arg(out);
+        cmd
+    };
+    let (clean, rough) = (dir.join("clean"), dir.join("rough"));
+    run(&mut video(&clean, &["--mono-disparity"]));
+    run(&mut video(&rough, &["--mono-disparity", "rough"]));
+    let read = |d: &Path, f: &str| std::fs::read(d.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+    for k in 0..3 {
+        let image = format!("train/r_{k:03}.png");
+        assert_eq!(read(&clean, &image), read(&rough, &image), "{image}");
+        let disp = format!("disp/train/r_{k:03}.npy");
+        assert_ne!(read(&clean, &disp), read(&rough, &disp), "{disp}");
+    }
+    let out = video(&dir.join("bad"), &["--mono-disparity", "noisy"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("rough"), "{err}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
