@@ -7,17 +7,31 @@ use rand::Rng;
 /// (log-uniform) and shift in [−0.1, 0.1] per frame and Gaussian noise of 5 % of the frame's
 /// mean disparity: the depth prior may rely only on what a real network gives, the ordering and
 /// relative spacing of depths within a frame.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DisparityErrors {
     /// The true inverse depth smoothed by a 3×3 box filter: affine in the truth up to the
     /// noise, an upper bound on what a real network gives.
-    #[default]
     Clean,
     /// Errors a real network makes that no scale and shift remove: edges blurred over a 5×5
     /// box, a per-frame power γ ∈ [0.71, 1.41] (log-uniform) on the normalised inverse depth
     /// (depths ordered right, spaced wrong), and a smooth field across the image that scales the
     /// disparity by up to ±15 % (two plane waves of 0.3-1.2 cycles per image).
     Rough,
+}
+
+impl std::str::FromStr for DisparityErrors {
+    type Err = String;
+
+    /// `clean` or `rough`, case ignored (`nerf synth --mono-disparity`).
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "clean" => Ok(DisparityErrors::Clean),
+            "rough" => Ok(DisparityErrors::Rough),
+            _ => Err(format!(
+                "unknown disparity errors '{s}' (expected clean or rough)"
+            )),
+        }
+    }
 }
 
 /// One frame's simulated disparity, row-major `[h·w]`, from its true camera depths `depth`

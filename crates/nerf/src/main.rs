@@ -84,16 +84,9 @@ enum Command {
         /// true inverse depth, smoothed, noisy, under an unknown scale and shift; `rough` adds
         /// errors no scale and shift remove (blurred edges, depths spaced wrong, a smooth field
         /// across the image), as a real monocular network makes.
-        #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "clean", value_name = "ERRORS")]
-        mono_disparity: Option<DisparityArg>,
+        #[arg(long, num_args = 0..=1, default_missing_value = "clean", value_name = "clean|rough")]
+        mono_disparity: Option<nerf_synth::DisparityErrors>,
     },
-}
-
-/// `nerf synth --mono-disparity`'s errors ([`nerf_synth::DisparityErrors`]).
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum DisparityArg {
-    Clean,
-    Rough,
 }
 
 #[derive(Subcommand)]
@@ -246,10 +239,7 @@ fn run(cli: Cli) -> Result<()> {
             mono_disparity,
         } => {
             let mut cfg = nerf_synth::SynthConfig::seeded(preset, seed);
-            cfg.mono_disparity = mono_disparity.map(|d| match d {
-                DisparityArg::Clean => nerf_synth::DisparityErrors::Clean,
-                DisparityArg::Rough => nerf_synth::DisparityErrors::Rough,
-            });
+            cfg.mono_disparity = mono_disparity;
             if let Some(s) = size {
                 cfg = cfg.with_size(s[0], s[1]);
             }
