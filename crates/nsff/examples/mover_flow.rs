@@ -45,18 +45,18 @@ fn cosine3(a: [f64; 3], b: [f64; 3]) -> f64 {
     dot(a, b) / (norm(a).max(1e-12) * norm(b).max(1e-12))
 }
 
-/// Running means, one per printed figure.
+/// Running sums, one per printed figure (divided by the pixel counts when printed).
 #[derive(Default)]
 struct Tally {
     pixels: usize,
     depth_error: Vec<f64>,
-    true_motion: f64,
+    true_scene_flow: f64,
     flow_true: (f64, f64),
     flow_rendered: (f64, f64),
     trusted: usize,
     prior_error: f64,
     still_shift: f64,
-    motion_true: f64,
+    true_motion_part: f64,
     cosine_true: f64,
     cosine_rendered: f64,
 }
@@ -108,7 +108,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let a: [f64; 3] = std::array::from_fn(|c| f64::from(at_true[3 * i + c]));
                 let b: [f64; 3] = std::array::from_fn(|c| f64::from(at_rendered[3 * i + c]));
                 tally.pixels += 1;
-                tally.true_motion += norm(motion);
+                tally.true_scene_flow += norm(motion);
                 tally.flow_true.0 += norm(a);
                 tally.flow_true.1 += cosine3(a, motion);
                 tally.flow_rendered.0 += norm(b);
@@ -132,7 +132,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     still_true[0] - still_rendered[0],
                     still_true[1] - still_rendered[1],
                 ]);
-                tally.motion_true += length2(true_part);
+                tally.true_motion_part += length2(true_part);
                 tally.cosine_true += cosine2(part(still_true, of), true_part);
                 tally.cosine_rendered += cosine2(part(still_rendered, of), true_part);
             }
@@ -148,7 +148,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         println!("  rendered depth, median relative error {median:.3}");
         println!(
             "  scene flow to the next frame: true length {:.4}; at the true surface {:.4}, cosine {:.2}; at the rendered surface {:.4}, cosine {:.2}",
-            tally.true_motion / n,
+            tally.true_scene_flow / n,
             tally.flow_true.0 / n,
             tally.flow_true.1 / n,
             tally.flow_rendered.0 / n,
@@ -158,7 +158,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "  optical-flow prior: trusted on {:.0} %, error {:.2} px; true motion part {:.2} px; a still point moved {:.2} px by the depth error; the prior's motion part, cosine to the truth: {:.2} with the still point at the true surface, {:.2} at the rendered one",
             100.0 * m / n,
             tally.prior_error / m,
-            tally.motion_true / m,
+            tally.true_motion_part / m,
             tally.still_shift / m,
             tally.cosine_true / m,
             tally.cosine_rendered / m
