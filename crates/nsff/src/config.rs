@@ -22,6 +22,7 @@ pub struct LossWeights {
     /// Projected scene flow against 2-D optical flow; decays.
     pub optical_flow: f64,
     /// Scale- and shift-invariant single-view depth; decays. Used only with disparity priors.
+    /// NSFF's 0.04; a video in the fast preset (not NDC) takes 0.01 ([`NsffConfig::adapt_to`]).
     pub depth: f64,
     /// One-sided entropy of the blend weight. NSFF's 1e-3; a video takes 0 ([`NsffConfig::new`]).
     pub entropy: f64,
@@ -652,6 +653,12 @@ const VIDEO_FIELD_CONSISTENCY: f64 = 0.1;
 // forty-ninth and fiftieth sessions).
 const VIDEO_LR_FINAL_RATIO: f64 = 0.3;
 
+// A video's monocular depth prior, when it has one, at a quarter of NSFF's 0.04: over the seven
+// tuning videos with a rough simulated disparity, three arms side by side at 600 s, mean PSNR
+// +0.22 dB over no prior against 0.04's +0.17, between frames +0.02 against −0.40, off the path
+// +0.42 against +0.74 (BENCHMARKS.md §6, sixty-first session).
+const VIDEO_DEPTH: f64 = 0.01;
+
 fn default_sparsity_points() -> usize {
     2048
 }
@@ -846,6 +853,7 @@ impl NsffConfig {
             if self.base.preset == Preset::Fast {
                 self.use_flow_grid();
                 self.base.lr_final = VIDEO_LR_FINAL_RATIO * self.base.lr;
+                self.weights.depth = VIDEO_DEPTH;
             }
         }
     }
@@ -896,8 +904,9 @@ impl NsffConfig {
         // The consistency term was screened on videos only.
         self.weights.field_consistency = LossWeights::default().field_consistency;
         self.weights.still_persistence = LossWeights::default().still_persistence;
-        // The learning rate's end was screened on videos only.
+        // The learning rate's end and the depth prior's weight were screened on videos only.
         self.base.lr_final = self.base.preset.learning_rates().1;
+        self.weights.depth = LossWeights::default().depth;
         // No optical flow, so no flow term trains a flow grid: the shared head, as screened.
         self.flow_levels = 0;
         self.flow_detach_weights = false;
@@ -1172,8 +1181,8 @@ mod tests {
     /// Both share time on the space-time grid's coarse levels and render at half the step. A
     /// video's warm-up refreshes the occupancy grid from the static field alone; a jumping
     /// camera's, whose exit rule reads the grid, from the combined density as measured, and
-    /// its learning rate ends where the preset's does (a video's higher end was screened on
-    /// videos only).
+    /// its learning rate ends where the preset's does and its depth prior keeps NSFF's weight
+    /// (a video's higher end and lighter prior were screened on videos only).
     #[test]
     fn videos_halve_the_batches_and_jumping_cameras_keep_them() {
         let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
@@ -1186,13 +1195,14 @@ mod tests {
             (cfg.weights.moving_dynamic, cfg.moving_dynamic_until),
             (0.01, 0.2)
         );
-        cfg.base.lr_final = 3e-3; // as a video's adapt_to leaves it
+        (cfg.base.lr_final, cfg.weights.depth) = (3e-3, 0.01); // as a video's adapt_to leaves them
         cfg.adapt_to_jumping_camera();
         assert_eq!(
             (cfg.base.lr, cfg.base.lr_final),
             (1e-2, 1e-3),
             "the preset's rates"
         );
+        assert_eq!(cfg.weights.depth, 0.04, "NSFF's depth weight");
         assert_eq!((cfg.static_batch_scale, cfg.space_time_share), (1.0, 1.0));
         assert_eq!(cfg.sparsity_points, 512);
         assert_eq!((cfg.weights.entropy, cfg.weights.moving_dynamic), (1e-3, 0.0));

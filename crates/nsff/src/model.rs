@@ -188,13 +188,21 @@ pub fn occupancy_density(
     let mut out = Vec::with_capacity(positions.len() / 3);
     for (chunk, tc) in positions.chunks(3 * 65536).zip(times.chunks(65536)) {
         let x = tensor(chunk.to_vec(), 3, device);
-        let st = fields.static_field.density(x.clone(), None);
-        let mut sigma = read_back(st.sigma, "static density")?;
+        let (st, sigma) = nerf_core::profile::span("occ.static", || {
+            let st = fields.static_field.density(x.clone(), None);
+            let sigma = read_back(st.sigma.clone(), "static density");
+            (st, sigma)
+        });
+        let mut sigma = sigma?;
         if let Some(dy) = &fields.dynamic {
             let blend = read_back(st.extras.expect(BLEND), "blend weight")?;
-            let d = dy.density(x, Some(tensor(tc.to_vec(), 1, device)));
-            let gate = read_back(d.extras.expect(GATE), "time gate")?;
-            let sigma_dy = read_back(d.sigma, "dynamic density")?;
+            let (gate, sigma_dy) = nerf_core::profile::span("occ.dynamic", || {
+                let d = dy.density(x, Some(tensor(tc.to_vec(), 1, device)));
+                Ok::<_, ModelError>((
+                    read_back(d.extras.expect(GATE), "time gate")?,
+                    read_back(d.sigma, "dynamic density")?,
+                ))
+            })?;
             for (((s, dd), b), g) in sigma.iter_mut().zip(sigma_dy).zip(blend).zip(gate) {
                 let (ws, wd) = blended_densities(b, g, *s, dd);
                 *s = ws + wd;

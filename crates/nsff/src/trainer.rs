@@ -1938,9 +1938,9 @@ mod tests {
     }
 
     /// A video in the fast preset takes its scene flow from its own grid, trained by the
-    /// projected-flow term mostly through detached render weights, and its learning rate ends
-    /// at 0.3 × its start; the vanilla preset and a jumping camera (no optical flow to train
-    /// it) keep the shared head and NSFF's weight.
+    /// projected-flow term mostly through detached render weights, its learning rate ends at
+    /// 0.3 × its start and its depth prior weighs 0.01; the vanilla preset and a jumping camera
+    /// (no optical flow to train it) keep the shared head and NSFF's weights.
     #[test]
     fn a_video_s_scene_flow_has_its_own_grid() {
         let (dir, mut cfg, video) = temp_video("nsff-flow-grid");
@@ -1956,6 +1956,10 @@ mod tests {
             (1e-2, 0.3 * 1e-2),
             "a video's rate ends higher"
         );
+        assert_eq!(
+            cfg.weights.depth, 0.01,
+            "a video's depth prior at a quarter of NSFF's"
+        );
         assert!(cfg.validate().is_ok());
         vanilla.base.preset = Preset::Vanilla;
         (vanilla.base.lr, vanilla.base.lr_final) = Preset::Vanilla.learning_rates();
@@ -1966,6 +1970,7 @@ mod tests {
             (5e-4, 5e-5),
             "not screened"
         );
+        assert_eq!(vanilla.weights.depth, 0.04, "NSFF's weight");
         assert!(
             vanilla.validate().is_ok(),
             "the vanilla preset refuses a flow grid"
