@@ -655,8 +655,8 @@ const VIDEO_LR_FINAL_RATIO: f64 = 0.3;
 
 // A video's monocular depth prior, when it has one, at a quarter of NSFF's 0.04: over the seven
 // tuning videos with a rough simulated disparity, three arms side by side at 600 s, mean PSNR
-// +0.22 dB over no prior against 0.04's +0.17, between frames +0.02 against −0.40, off the path
-// +0.42 against +0.74 (BENCHMARKS.md §6, sixty-first session).
+// +0.19 dB over no prior against 0.04's +0.09, between frames +0.01 against −0.51, off the path
+// +0.37 against +0.68 (BENCHMARKS.md §6, sixty-first session).
 const VIDEO_DEPTH: f64 = 0.01;
 
 fn default_sparsity_points() -> usize {
