@@ -188,14 +188,12 @@ pub fn occupancy_density(
     let mut out = Vec::with_capacity(positions.len() / 3);
     for (chunk, tc) in positions.chunks(3 * 65536).zip(times.chunks(65536)) {
         let x = tensor(chunk.to_vec(), 3, device);
-        let (st, sigma) = nerf_core::profile::span("occ.static", || {
+        let (extras, mut sigma) = nerf_core::profile::span("occ.static", || {
             let st = fields.static_field.density(x.clone(), None);
-            let sigma = read_back(st.sigma.clone(), "static density");
-            (st, sigma)
-        });
-        let mut sigma = sigma?;
+            Ok::<_, ModelError>((st.extras, read_back(st.sigma, "static density")?))
+        })?;
         if let Some(dy) = &fields.dynamic {
-            let blend = read_back(st.extras.expect(BLEND), "blend weight")?;
+            let blend = read_back(extras.expect(BLEND), "blend weight")?;
             let (gate, sigma_dy) = nerf_core::profile::span("occ.dynamic", || {
                 let d = dy.density(x, Some(tensor(tc.to_vec(), 1, device)));
                 Ok::<_, ModelError>((
