@@ -1,6 +1,5 @@
 //! The one optimiser step every model takes: burn's Adam on the module's parameters, and the
-//! sparse Adam of each host-side table (hash grids), at the step's learning rate (one part of the
-//! module may take its own, [`Optimizer::step_with_part`]).
+//! sparse Adam of each host-side table (hash grids), at the step's learning rate.
 
 use std::sync::Arc;
 
@@ -39,30 +38,6 @@ impl Optimizer {
         let grads = span("backward", || loss.backward());
         let grads = GradientsParams::from_grads(grads, &module);
         self.update(module, [(grads, lr)], [(host, lr)])
-    }
-
-    /// As [`Optimizer::step`], with one part of the module at its own learning rate: `part`
-    /// picks the submodule, whose parameters and host tables `part_host` step at `part_lr`
-    /// (its gradients are taken out of the whole before the rest step at `lr`).
-    #[allow(clippy::too_many_arguments)]
-    pub fn step_with_part<M: Module, P: Module>(
-        &mut self,
-        loss: Tensor<1>,
-        lr: f64,
-        module: M,
-        host: &[Arc<HashGrid>],
-        part: impl Fn(&M) -> &P,
-        part_lr: f64,
-        part_host: &[Arc<HashGrid>],
-    ) -> M {
-        let mut grads = span("backward", || loss.backward());
-        let part_grads = GradientsParams::from_module(&mut grads, part(&module));
-        let grads = GradientsParams::from_grads(grads, &module);
-        self.update(
-            module,
-            [(part_grads, part_lr), (grads, lr)],
-            [(part_host, part_lr), (host, lr)],
-        )
     }
 
     /// Adam on each group of the module's gradients and of the host tables, at its rate.

@@ -27,10 +27,6 @@ pub struct NsffState {
     /// Rays of the static batch per step (adapted the same way); 0 in older checkpoints.
     #[serde(default)]
     pub n_static_rays: usize,
-    /// Whether the motion masks were refined (`mask_refine_quantile`); the pixels taken out
-    /// are in the `mask_refined` section. False in older checkpoints.
-    #[serde(default)]
-    pub masks_refined: bool,
 }
 
 /// Writes an NSFF model's sections ("bounds", "times" and the "model" parts).
@@ -210,5 +206,37 @@ mod tests {
         assert!((got.occupied_fraction() - 0.3).abs() < 1e-3, "the union");
         let still = NsffModel::new(&cfg, bounds, times, false, &device);
         assert_eq!(still.occupancy.unwrap().num_bins(), 1);
+    }
+
+    /// A checkpoint written before an opt-in experiment was taken out of the code still loads:
+    /// its state names settings and loss weights the config no longer has (here from the
+    /// sixty-second session's removals), and they are ignored, the rest read as written.
+    #[test]
+    fn a_state_naming_removed_settings_still_loads() {
+        let cfg = NsffConfig::new(
+            nerf::config::Preset::Fast,
+            "data".into(),
+            nerf_data::LoadOptions::default(),
+        );
+        let state = NsffState {
+            config: cfg,
+            step: 7,
+            elapsed: 1.5,
+            dynamic: true,
+            moving_fraction: Some(0.1),
+            n_rays: 512,
+            n_static_rays: 256,
+        };
+        let mut json = serde_json::to_value(&state).unwrap();
+        json["masks_refined"] = true.into();
+        let config = &mut json["config"];
+        config["warp_hops"] = 3.into();
+        config["mask_refine_quantile"] = 0.9.into();
+        config["static_lr_final"] = serde_json::Value::Null;
+        config["weights"]["blend_hole"] = 0.3.into();
+        config["weights"]["still_persistence"] = 1.0.into();
+        let back: NsffState = serde_json::from_value(json).unwrap();
+        assert_eq!(back.config, state.config);
+        assert_eq!((back.step, back.n_rays, back.n_static_rays), (7, 512, 256));
     }
 }

@@ -35,15 +35,6 @@ pub struct LossWeights {
     /// surface on the step's own rays (what the frame's camera cannot see at its time).
     #[serde(default = "default_hidden")]
     pub hidden: f64,
-    /// Dynamic share of the combined render on rays outside the frame's motion mask: static
-    /// content belongs to the static field (else the dynamic field, which must render whole
-    /// frames alone, takes it over and shows as fog off the camera path).
-    #[serde(default = "default_still_dynamic")]
-    pub still_dynamic: f64,
-    /// Dynamic share of the combined render on every ray, masks or not: where the static field
-    /// explains a pixel as well, the pixel goes to it; movers pay and stay dynamic.
-    #[serde(default)]
-    pub dynamic_share: f64,
     /// During the first `moving_dynamic_until` of the space-time phase (videos; BENCHMARKS.md
     /// §6, twenty-seventh to twenty-ninth sessions): the shortfall of the combined render's
     /// dynamic share below [`MOVING_SHARE_FLOOR`] on the rays inside the motion masks where the
@@ -57,61 +48,10 @@ pub struct LossWeights {
     /// fam5 off the path). A jumping camera keeps its entropy term instead.
     #[serde(default)]
     pub moving_dynamic: f64,
-    /// Spread of the dynamic-only render's weights along each ray ([`crate::losses::
-    /// depth_spread`]): each time's geometry is seen by one camera, which a density smeared
-    /// along its rays fits as well as a surface.
-    #[serde(default)]
-    pub depth_spread: f64,
-    /// Photometric loss of the static field alone on the space-time batch's rays, each weighted
-    /// by the combined render's static share (1 − its dynamic share, held fixed) where that
-    /// dynamic share is below `static_claimed_below`: what the blend gives the static field, the
-    /// static field must draw alone. It renders the static query the combined render made (no
-    /// extra field query). Without it the static field stops learning once the dynamic field
-    /// draws, above all on the static pixels inside the dilated motion masks, which the static
-    /// batch never sees (BENCHMARKS.md §6, thirtieth and thirty-first sessions).
-    #[serde(default)]
-    pub static_claimed: f64,
     /// [`crate::losses::field_consistency`] between each sample of the space-time batch and
     /// the point its scene flow moves it to at the warped neighbour's time.
     #[serde(default)]
     pub field_consistency: f64,
-    /// Still matter persists: at a random share (`still_share`) of the space-time batch's
-    /// samples, [`crate::losses::field_consistency`] between the dynamic field at (x, t) and at
-    /// the same x at another random frame's time, each sample weighted by
-    /// [`crate::losses::still_gate`] of the scene flow at both (so movers are spared). A static
-    /// object the motion masks hold is drawn by the dynamic field frame by frame; a frame whose
-    /// camera saw it edge-on otherwise has it thin or missing off the camera path.
-    #[serde(default)]
-    pub still_persistence: f64,
-    /// With `masked_static`: the blend weight b (the static field's, time-independent) along
-    /// the static batch's masked rays, composited with the static render's weights (held
-    /// fixed), each ray weighted by max(0, 2w − 1) of its robust weight w, so only the rays
-    /// the static field explains about as well as the still ones (squared error below τ) take
-    /// part and the movers (far off, w ≪ 1/2) are spared: at w itself the many movers' rays
-    /// shut the blend on the movers (fam3 −3.76 dB between frames, BENCHMARKS.md §6,
-    /// thirty-eighth session). Where the static field alone explains a masked pixel, the blend
-    /// there gives way, so a frame whose dynamic field holds nothing at that point (its camera
-    /// saw a still object edge-on) no longer cuts a hole in it.
-    #[serde(default)]
-    pub masked_blend: f64,
-    /// [`crate::losses::blend_hole`] at the sparsity term's random points: where the static
-    /// field is more opaque than the dynamic field at the step's time, the blend b_s·g shuts,
-    /// so the still matter shows. An open blend there cuts a hole in the static scene (fam14's
-    /// plate at the frame that sees it edge-on, BENCHMARKS.md §6, thirty-eighth session). Opt-in
-    /// at 0: on the tuning pilots it trades off-path gains for losses between frames, and it
-    /// keeps fam14's plate only at 0.3, which shuts another video's blend (fortieth session).
-    #[serde(default)]
-    pub blend_hole: f64,
-    /// [`crate::losses::static_free_space`] on the space-time batch's rays: the static field's
-    /// own optical depth in front of the combined render's visible surface (the space a frame's
-    /// camera sees through at its time). The blend hides such static matter from the renders,
-    /// but not from other times and views: copies of the movers along their paths, and a
-    /// still object too thick for the frame that sees it edge-on. Opt-in at 0 (checkpoints from
-    /// before it read 0): at 0.01 it clears most of the movers' copies but costs 0.1-0.35 dB
-    /// on two tuning videos, and with `masked_static` and `blend_hole` it does not keep fam14's
-    /// plate (BENCHMARKS.md §6, forty-first session).
-    #[serde(default)]
-    pub static_free_space: f64,
 }
 
 impl LossWeights {
@@ -151,10 +91,6 @@ fn default_render_step_scale() -> f32 {
     1.0
 }
 
-fn default_still_dynamic() -> f64 {
-    0.0
-}
-
 fn default_hidden() -> f64 {
     0.01
 }
@@ -176,16 +112,8 @@ impl Default for LossWeights {
             entropy: 1e-3,
             sparsity: default_sparsity(),
             hidden: default_hidden(),
-            still_dynamic: default_still_dynamic(),
-            dynamic_share: 0.0,
             moving_dynamic: 0.0,
-            depth_spread: 0.0,
-            static_claimed: 0.0,
             field_consistency: 0.0,
-            still_persistence: 0.0,
-            masked_blend: 0.0,
-            blend_hole: 0.0,
-            static_free_space: 0.0,
         }
     }
 }
@@ -316,42 +244,11 @@ pub struct NsffConfig {
     /// learns as fast as in `nerf` while the costly dynamic terms see one frame per step.
     #[serde(default = "default_static_batch")]
     pub static_batch: bool,
-    /// Score the dynamic-only render on the frame's motion mask only, instead of whole frames
-    /// (NSFF), so the dynamic field need not learn the static scene.
-    #[serde(default)]
-    pub dynamic_photo_masked: bool,
-    /// Weight of the dynamic-only render's photometric loss on rays outside the frame's motion
-    /// mask, against 1 inside it (1: NSFF's whole frames; `dynamic_photo_masked` is 0). Below 1
-    /// the dynamic field learns less of the static scene, which it otherwise draws over the static
-    /// field's wherever the blend lets it. Opt-in: at 0.25 it lost 0.25 dB on fam3 to a run of
-    /// the default on the same day (BENCHMARKS.md §6, thirtieth session). Meaningless for a
-    /// jumping camera, which has no motion masks.
-    #[serde(default = "default_dynamic_photo_still")]
-    pub dynamic_photo_still: f32,
-    /// `weights.static_claimed` counts only the rays whose dynamic share is below this (1: all
-    /// rays; lower spares the movers' rays, whose share the blend term holds at a floor, and
-    /// which at 1 cost the views between frames).
-    #[serde(default = "default_static_claimed_below")]
-    pub static_claimed_below: f32,
-    /// Share of the space-time batch's samples that `weights.still_persistence` compares with
-    /// another frame's time (one extra dynamic-field query on them).
-    #[serde(default = "default_still_share")]
-    pub still_share: f32,
-    /// The scene-flow length, as a share of the scene box's largest side, at which
-    /// `weights.still_persistence`'s gate falls to e⁻¹ ([`crate::losses::still_gate`]).
-    #[serde(default = "default_still_flow_scale")]
-    pub still_flow_scale: f32,
     /// Samples of the static batch per step, as a share of the static pipeline's
     /// `target_samples` (its ray count adapts to keep it, as `nerf train`'s does): at 1 the static
     /// batch is a `nerf train` step. Videos take 0.5, a jumping camera 1.
     #[serde(default = "default_static_batch_scale")]
     pub static_batch_scale: f32,
-    /// The static batch's share during the static warm-up, where it is the whole step; `None`
-    /// (and checkpoints from before it): `static_batch_scale`. At 1 (NeRF's batch) it was level
-    /// on the six tuning videos at 600 s with 18 % fewer steps, so opt-in (BENCHMARKS.md §6,
-    /// forty-seventh session).
-    #[serde(default)]
-    pub warm_up_batch_scale: Option<f32>,
     /// Samples of the space-time batch (one frame, four field queries per sample) per step, as a
     /// share of the static pipeline's `target_samples`; its ray count adapts to keep it.
     /// Videos take 0.5, a jumping camera 1.
@@ -364,15 +261,6 @@ pub struct NsffConfig {
     /// from before it read 0 (their runs go on as they started).
     #[serde(default)]
     pub static_warm_up: f64,
-    /// Share of the masked pixels (inside the motion masks) that the static warm-up's batch
-    /// draws at its start, falling linearly to 0 at its end. The masks hold static pixels at
-    /// occlusion edges and silhouettes, which the static field otherwise never trains on; what it
-    /// learns of the movers with them, the warm-up's last part and the space-time phase unlearn.
-    /// 0: off (checkpoints from before it read 0). At 1 with `warm_up_random_background` the
-    /// static field alone gains off the path on four of six tuning videos, but the renders lose
-    /// between frames on all six (BENCHMARKS.md §6, twenty-third session).
-    #[serde(default)]
-    pub warm_up_masked: f32,
     /// Share of the masked pixels (inside the motion masks) that the static batch draws all run
     /// long, each weighted by the robust weight 1 / (1 + e / τ) of its squared error e (held
     /// fixed), τ = `masked_static_scale` × the mean error of the batch's unmasked rays. A
@@ -388,66 +276,21 @@ pub struct NsffConfig {
     #[serde(default)]
     pub masked_static: f32,
     /// `masked_static` during the static warm-up only: the static field learns the still matter
-    /// the masks hold (a plate whose flow fails) before `mask_refine_quantile` reads its errors,
-    /// and the space-time phase draws outside the (refined) masks again. False (the default,
-    /// and what checkpoints from before it read): all run long. Opt-in: with `masked_static` 1,
+    /// the masks hold (a plate whose flow fails), and the space-time phase draws outside the
+    /// masks again. False (the default, and what checkpoints from before it read): all run long. Opt-in: with `masked_static` 1,
     /// on the seven tuning videos at 600 s, it gained 0.52 and 0.43 dB off the path in two
     /// screens and lost 0.46 and 0.29 between frames, the mean +0.03 and +0.07 (BENCHMARKS.md §6,
     /// fifty-first and fifty-second sessions).
     #[serde(default)]
     pub masked_static_warm_up_only: bool,
-    /// With `masked_static_warm_up_only`, the share of masked pixels the warm-up draws falls
-    /// linearly from `masked_static` to 0 at the warm-up's end (as `warm_up_masked`'s does), so
-    /// its last part trains on unmasked pixels only and unlearns the copy of the movers that
-    /// their small robust weights leave in the static field. False (the default, and what
-    /// checkpoints from before it read): the share holds all through the warm-up. Opt-in: on
-    /// the seven tuning videos at 600 s it lost 0.34 dB on the mean against the share held, off
-    /// the path (−0.30) as well as between frames (−0.37) (BENCHMARKS.md §6, fifty-second
-    /// session): the copy of the movers, if there is one, is not what costs between frames.
-    #[serde(default)]
-    pub masked_static_falls: bool,
     /// τ of `masked_static`'s weight, in units of the unmasked rays' mean squared error.
     #[serde(default = "default_masked_static_scale")]
     pub masked_static_scale: f32,
-    /// When the static warm-up ends, the static field renders every frame's masked pixels, and
-    /// a masked pixel whose 3×3 masked neighbourhood it renders with a squared error at most
-    /// this quantile of the unmasked pixels' errors leaves the motion mask for the rest of the
-    /// run ([`crate::mask_refine`]): static content the flow's masks hold (occlusion edges, the
-    /// dilation's ring) goes back to the static batch, and a mover, which the static field has
-    /// never seen, stays. 0 (the default, and what checkpoints from before it read): off.
-    /// Opt-in: at 0.9 it lost 0.2-0.4 dB on three tuning videos, and on top of
-    /// `masked_static_warm_up_only` 0.22 dB on the seven (BENCHMARKS.md §6, fifty-first session).
-    #[serde(default)]
-    pub mask_refine_quantile: f32,
-    /// The warm-up's static batch composites RGBA frames over a random colour per ray (as `nerf
-    /// train` does): over white, masked pixels against the sky teach white density, and the
-    /// off-path views lose up to 5.7 dB (BENCHMARKS.md §6, twenty-third session). Checkpoints from
-    /// before it read false.
-    #[serde(default)]
-    pub warm_up_random_background: bool,
-    /// The static batch composites RGBA frames over a random colour per ray all run long, not
-    /// only in the warm-up: with `masked_static` the masked pixels against the sky otherwise
-    /// teach the static field white fog (fam21, BENCHMARKS.md §6, thirty-eighth session).
-    /// Checkpoints from before it read false.
-    #[serde(default)]
-    pub static_random_background: bool,
-    /// With `masked_static`, the static batch's masked rays (only) composite RGBA frames over a
-    /// random colour per ray all run long; the unmasked rays keep the dataset's background.
-    /// Aimed at the white fog of `masked_static` on fam21 at less cost than
-    /// `static_random_background`. Checkpoints from before it read false.
-    #[serde(default)]
-    pub masked_random_background: bool,
     /// Whether the learning rate's decay, like the decaying weights', counts from the end of the
     /// static warm-up (the rate stays at `lr` during it). Without it the dynamic field starts at
     /// the rate of 30 % into the run. Checkpoints from before it read false.
     #[serde(default)]
     pub lr_decay_after_warm_up: bool,
-    /// The static field's own final learning rate (its tables and networks decay from
-    /// `base.lr` to this over the same schedule); `None`: `base.lr_final`, as the dynamic
-    /// field's. The two fields learn differently: a static cell is seen by every step, a
-    /// space-time cell of the finest levels by one frame's steps only.
-    #[serde(default)]
-    pub static_lr_final: Option<f64>,
     /// Ends the static warm-up early once the occupancy grid fills up again to this many times
     /// its lowest occupied fraction (and by at least 10 % of the grid): the sign that the views
     /// disagree and the static field paints fog where things move. 0: off (videos, whose
@@ -455,10 +298,6 @@ pub struct NsffConfig {
     /// adapt_to_jumping_camera`]).
     #[serde(default)]
     pub warm_up_exit_rise: f32,
-    /// When `warm_up_exit_rise` ends the warm-up, start the fields (and the optimiser) afresh,
-    /// so the fog the static field painted goes too; the warm-up then only decides.
-    #[serde(default)]
-    pub warm_up_exit_restart: bool,
     /// During the static warm-up, refresh the occupancy grid with the static field's density
     /// alone (what the warm-up renders) instead of the combined density: the untrained dynamic
     /// field costs half of each refresh for nothing. On for videos (BENCHMARKS.md §6,
@@ -512,21 +351,6 @@ pub struct NsffConfig {
     /// dynamic-field query of every sample and its backward pass.
     #[serde(default = "default_warp_neighbours")]
     pub warp_neighbours: usize,
-    /// Frames away a video's warped render may reach, the flowed points carried on by the scene
-    /// flow at each frame in between: each warp draws its distance uniformly from 1 to this
-    /// (as far as the video goes in its direction). 1 warps to the neighbour only (NSFF's
-    /// 3-frame consistency); 2 adds NSFF's chained 5-frame one. A frame's dynamic field then
-    /// answers to cameras further along the path, for the price of a flow-grid query per hop.
-    /// The cycle and optical-flow terms stay on the first hop. Checkpoints from before it read 1.
-    #[serde(default = "default_warp_hops")]
-    pub warp_hops: usize,
-    /// With `warp_hops` > 1: 0 draws each warp's distance from 1 to `warp_hops` (one warped
-    /// render a step); above 0 every warp goes to the neighbour as with `warp_hops` = 1, and a
-    /// second warped render, its distance drawn from 2 to `warp_hops`, adds its photometric term
-    /// at this weight (NSFF's 5-frame term beside the 3-frame ones; another dynamic-field query
-    /// of every sample). Checkpoints from before it read 0.
-    #[serde(default)]
-    pub warp_chain_weight: f64,
     /// Scene flow from its own small space-time grid (this many levels; fast preset) and MLP
     /// instead of the dynamic field's shared head, so the flow terms do not pull the features
     /// that density and colour are made of. 0: the shared head (the vanilla preset's, a jumping
@@ -689,26 +513,6 @@ fn default_warp_neighbours() -> usize {
     2
 }
 
-fn default_warp_hops() -> usize {
-    1
-}
-
-fn default_static_claimed_below() -> f32 {
-    1.0
-}
-
-fn default_still_share() -> f32 {
-    0.25
-}
-
-fn default_still_flow_scale() -> f32 {
-    1e-3
-}
-
-fn default_dynamic_photo_still() -> f32 {
-    1.0
-}
-
 fn default_masked_static_scale() -> f32 {
     2.0
 }
@@ -785,25 +589,12 @@ impl NsffConfig {
             hard_fraction: default_hard_fraction(),
             static_batch: default_static_batch(),
             static_batch_scale: VIDEO_STATIC_BATCH_SCALE,
-            warm_up_batch_scale: None,
             space_time_share: VIDEO_SPACE_TIME_SHARE,
-            dynamic_photo_masked: false,
-            dynamic_photo_still: default_dynamic_photo_still(),
-            static_claimed_below: default_static_claimed_below(),
-            still_share: default_still_share(),
-            still_flow_scale: default_still_flow_scale(),
             static_warm_up: 0.3,
-            warm_up_masked: 0.0,
             masked_static: 0.0,
-            mask_refine_quantile: 0.0,
             masked_static_warm_up_only: false,
-            masked_static_falls: false,
             masked_static_scale: default_masked_static_scale(),
-            warm_up_random_background: false,
-            static_random_background: false,
-            masked_random_background: false,
             lr_decay_after_warm_up: true,
-            static_lr_final: None,
             sparsity_points: VIDEO_SPARSITY_POINTS,
             error_rays: 0.0,
             time_jitter: 0.0,
@@ -811,14 +602,11 @@ impl NsffConfig {
             // and on every video of the tuning set (§6, fifteenth session).
             render_step_scale: RENDER_STEP_SCALE,
             warm_up_exit_rise: 0.0,
-            warm_up_exit_restart: false,
             warm_up_static_occupancy: true,
             moving_dynamic_until: default_moving_dynamic_until(),
             occupancy_time_bins: default_occupancy_time_bins(),
             frames_per_batch: default_frames_per_batch(),
             warp_neighbours: VIDEO_WARP_NEIGHBOURS,
-            warp_hops: default_warp_hops(),
-            warp_chain_weight: 0.0,
             flow_levels: 0,
             flow_log2_table: default_flow_log2_table(),
             flow_finest: default_flow_finest(),
@@ -903,7 +691,6 @@ impl NsffConfig {
         self.weights.moving_dynamic = LossWeights::default().moving_dynamic;
         // The consistency term was screened on videos only.
         self.weights.field_consistency = LossWeights::default().field_consistency;
-        self.weights.still_persistence = LossWeights::default().still_persistence;
         // The learning rate's end and the depth prior's weight were screened on videos only.
         self.base.lr_final = self.base.preset.learning_rates().1;
         self.weights.depth = LossWeights::default().depth;
@@ -942,71 +729,16 @@ impl NsffConfig {
                 self.flow_levels, self.base.preset
             ));
         }
-        if !(0.0..=1.0).contains(&self.warm_up_masked) {
-            return Err(format!(
-                "warm_up_masked must be in [0, 1], got {}",
-                self.warm_up_masked
-            ));
-        }
         if !(0.0..=1.0).contains(&self.masked_static) {
             return Err(format!(
                 "masked_static must be in [0, 1], got {}",
                 self.masked_static
             ));
         }
-        if self.masked_static_falls && !(self.masked_static > 0.0 && self.masked_static_warm_up_only) {
-            return Err(
-                "masked_static_falls needs masked_static > 0 and masked_static_warm_up_only \
-                        (it lowers the warm-up's share of masked_static's rays)"
-                    .to_string(),
-            );
-        }
-        // Both act on the static batch's masked rays, which only `masked_static` draws: alone
-        // they would change nothing without saying so.
-        if self.masked_static == 0.0 && (self.masked_random_background || self.weights.masked_blend > 0.0) {
-            return Err(
-                "masked_random_background and weights.masked_blend need masked_static > 0 \
-                        (they act on the static batch's masked rays, which only masked_static draws)"
-                    .to_string(),
-            );
-        }
-        if let Some(s) = self.warm_up_batch_scale.filter(|s| !(s.is_finite() && *s > 0.0)) {
-            return Err(format!("warm_up_batch_scale must be a positive number, got {s}"));
-        }
-        if let Some(r) = self.static_lr_final.filter(|r| !(r.is_finite() && *r > 0.0)) {
-            return Err(format!("static_lr_final must be a positive number, got {r}"));
-        }
-        if !(0.0..=1.0).contains(&self.mask_refine_quantile) {
-            return Err(format!(
-                "mask_refine_quantile must be in [0, 1], got {}",
-                self.mask_refine_quantile
-            ));
-        }
         if !(self.masked_static_scale.is_finite() && self.masked_static_scale > 0.0) {
             return Err(format!(
                 "masked_static_scale must be a positive number, got {}",
                 self.masked_static_scale
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.dynamic_photo_still) {
-            return Err(format!(
-                "dynamic_photo_still must be in [0, 1], got {}",
-                self.dynamic_photo_still
-            ));
-        }
-        if !(self.static_claimed_below > 0.0 && self.static_claimed_below <= 1.0) {
-            return Err(format!(
-                "static_claimed_below must be in (0, 1], got {}",
-                self.static_claimed_below
-            ));
-        }
-        if !(self.still_share > 0.0 && self.still_share <= 1.0) {
-            return Err(format!("still_share must be in (0, 1], got {}", self.still_share));
-        }
-        if !(self.still_flow_scale > 0.0 && self.still_flow_scale.is_finite()) {
-            return Err(format!(
-                "still_flow_scale must be positive, got {}",
-                self.still_flow_scale
             ));
         }
         if !(0.0..=1.0).contains(&self.flow_weights_share) {
@@ -1032,17 +764,8 @@ impl NsffConfig {
                 "warp_neighbours must be at least 1 (0 would drop the scene flow's warp terms)".into(),
             );
         }
-        if self.warp_hops == 0 {
-            return Err("warp_hops must be at least 1 (the neighbour itself)".into());
-        }
         if self.gate_reach == 0 {
             return Err("gate_reach must be at least 1 (the two neighbouring frames)".into());
-        }
-        if !(self.warp_chain_weight.is_finite() && self.warp_chain_weight >= 0.0) {
-            return Err(format!(
-                "warp_chain_weight must be a finite number, 0 or more, got {}",
-                self.warp_chain_weight
-            ));
         }
         self.base.validate()?;
         self.weights.validate()?;
@@ -1102,49 +825,6 @@ mod tests {
         let mut cfg = fresh();
         cfg.gate_reach = 0;
         assert!(cfg.validate().unwrap_err().contains("gate_reach"));
-        // The dynamic-only render's weight on still rays is a fraction.
-        for (w, ok) in [
-            (1.0, true),
-            (0.25, true),
-            (0.0, true),
-            (-0.1, false),
-            (1.5, false),
-        ] {
-            let mut cfg = fresh();
-            cfg.dynamic_photo_still = w;
-            assert_eq!(cfg.validate().is_ok(), ok, "weight {w}");
-        }
-        // The static field's claim on a ray ends at a dynamic share in (0, 1].
-        for (below, ok) in [
-            (1.0, true),
-            (0.1, true),
-            (0.0, false),
-            (1.5, false),
-            (f32::NAN, false),
-        ] {
-            let mut cfg = fresh();
-            cfg.static_claimed_below = below;
-            assert_eq!(cfg.validate().is_ok(), ok, "below {below}");
-        }
-        // The masked rays' settings need masked rays.
-        for (share, random, blend, ok) in [
-            (0.0, true, 0.0, false),
-            (0.0, false, 0.01, false),
-            (1.0, true, 0.01, true),
-            (0.0, false, 0.0, true),
-        ] {
-            let mut cfg = fresh();
-            (
-                cfg.masked_static,
-                cfg.masked_random_background,
-                cfg.weights.masked_blend,
-            ) = (share, random, blend);
-            assert_eq!(
-                cfg.validate().is_ok(),
-                ok,
-                "share {share} random {random} blend {blend}"
-            );
-        }
         let mut cfg = fresh();
         cfg.adapt_to_jumping_camera();
         assert!(cfg.validate().is_ok());
@@ -1163,8 +843,8 @@ mod tests {
             (f64::INFINITY, false),
         ] {
             let first: fn(&mut LossWeights) -> &mut f64 = |l| &mut l.dynamic_photo;
-            let last: fn(&mut LossWeights) -> &mut f64 = |l| &mut l.static_free_space;
-            for (name, field) in [("dynamic_photo", first), ("static_free_space", last)] {
+            let last: fn(&mut LossWeights) -> &mut f64 = |l| &mut l.field_consistency;
+            for (name, field) in [("dynamic_photo", first), ("field_consistency", last)] {
                 let mut cfg = fresh();
                 *field(&mut cfg.weights) = w;
                 let got = cfg.validate();
@@ -1248,31 +928,7 @@ mod tests {
         cfg.warp_neighbours = 0;
         assert!(cfg.validate().unwrap_err().contains("warp_neighbours"));
         cfg.warp_neighbours = 1;
-        cfg.warp_hops = 0;
-        assert!(cfg.validate().unwrap_err().contains("warp_hops"));
-        cfg.warp_hops = 1;
-        for bad in [-1.0, f64::NAN, f64::INFINITY] {
-            cfg.warp_chain_weight = bad;
-            assert!(cfg.validate().unwrap_err().contains("warp_chain_weight"), "{bad}");
-        }
-        cfg.warp_chain_weight = 0.5;
         assert!(cfg.validate().is_ok());
-    }
-
-    /// `masked_static_falls` lowers the warm-up share of `masked_static`'s rays: without both
-    /// it would change nothing, so it is refused.
-    #[test]
-    fn masked_static_falls_needs_masked_static_in_the_warm_up_only() {
-        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
-        cfg.masked_static_falls = true;
-        for (masked, warm_up_only, ok) in [(0.0, true, false), (1.0, false, false), (1.0, true, true)] {
-            (cfg.masked_static, cfg.masked_static_warm_up_only) = (masked, warm_up_only);
-            let got = cfg.validate();
-            assert_eq!(got.is_ok(), ok, "{masked} {warm_up_only}: {got:?}");
-            if let Err(e) = got {
-                assert!(e.contains("masked_static_falls"), "{e}");
-            }
-        }
     }
 
     /// A jumping camera's finest time cells span two frames: 150 frames (149 gaps, as

@@ -322,8 +322,8 @@ mod tests {
         DynamicField::new(&cfg, AABB, device)
     }
 
-    /// The flow-only query (a chained warp's hops) gives what a full query's flow outputs give
-    /// at the same points and times, with the flow grid and with the shared head.
+    /// The flow-only query ([`DynamicField::scene_flow`]) gives what a full query's flow
+    /// outputs give at the same points and times, with the flow grid and with the shared head.
     #[test]
     fn the_flow_only_query_matches_the_full_query() {
         let device = Device::flex();

@@ -12,7 +12,6 @@ pub mod export;
 pub mod field;
 pub mod geometry;
 pub mod losses;
-pub mod mask_refine;
 pub mod model;
 pub mod render;
 pub mod trainer;

@@ -5,14 +5,14 @@
 use std::cell::{Cell, RefCell};
 use std::path::{Path, PathBuf};
 
-use burn::tensor::{Device, Int, Tensor, TensorData};
+use burn::tensor::{Device, Tensor};
 use nerf::checkpoint::{Sections, has_checkpoint};
 use nerf::error::{ModelError, Result, read_scalar};
 use nerf::model::scene_bounds;
 use nerf::optimizer::Optimizer;
 use nerf::renderer::tensor;
 use nerf_core::error_map::ErrorMap;
-use nerf_core::field::{Field, FieldOutputs, FieldQuery, rows3};
+use nerf_core::field::{Field, FieldOutputs, FieldQuery};
 use nerf_core::metrics::psnr_from_mse;
 use nerf_core::profile::span;
 use nerf_core::rays::Rays;
@@ -58,16 +58,7 @@ pub struct NsffTrainer {
     /// the dynamic-only render fits better than the combined one: the rays it opens the blend
     /// on (the status line's readout).
     earned_readout: Cell<Option<f32>>,
-    /// Per frame, the pixels `mask_refine_quantile` took out of the motion masks, once done.
-    mask_refined: Option<Vec<Vec<bool>>>,
 }
-
-/// Unmasked pixels per frame whose static-field error sets `mask_refine_quantile`'s threshold.
-const REFINE_UNMASKED_PER_FRAME: usize = 1024;
-
-/// The gap, in march steps, left between the space `weights.static_free_space` clears and the
-/// combined render's visible surface, so that the surface's own still matter is spared.
-const FRONT_MARGIN_STEPS: f32 = 4.0;
 
 /// How far the blend b = b_s·g opens on a batch's rays inside and outside the motion masks:
 /// the mean over rays of each ray's largest b. A blend that stays shut on the moving rays
@@ -199,7 +190,6 @@ impl NsffTrainer {
             profiling_warm_up: false,
             blend_readout: Cell::new(None),
             earned_readout: Cell::new(None),
-            mask_refined: None,
         })
     }
 
@@ -245,15 +235,6 @@ impl NsffTrainer {
         if state.n_static_rays > 0 {
             self.n_static_rays = state.n_static_rays;
         }
-        if state.masks_refined {
-            let v = &self.video;
-            let pixels = v.motion_masks.first().map_or(0, Vec::len);
-            let removed =
-                crate::mask_refine::unpack(s.require("mask_refined", path)?, v.frames.len(), pixels)
-                    .map_err(|m| ModelError::checkpoint(path, m))?;
-            self.video.unmask(&removed);
-            self.mask_refined = Some(removed);
-        }
         Ok(())
     }
 
@@ -267,13 +248,9 @@ impl NsffTrainer {
             moving_fraction: self.video.moving_fraction,
             n_rays: self.n_rays,
             n_static_rays: self.n_static_rays,
-            masks_refined: self.mask_refined.is_some(),
         };
         let mut s = Sections::default();
         s.push_json("state", &state, &path)?;
-        if let Some(removed) = &self.mask_refined {
-            s.push("mask_refined", crate::mask_refine::pack(removed));
-        }
         write_model(&self.model, &mut s, &path)?;
         let optim = self
             .optim
@@ -293,9 +270,6 @@ impl NsffTrainer {
             .wrapping_add(self.step as u64);
         let mut rng = StdRng::seed_from_u64(seed);
         let warm_up = self.in_static_warm_up();
-        if !warm_up && self.mask_refined.is_none() && self.refines_masks() {
-            span("nsff_mask_refine", || self.refine_masks())?;
-        }
         if !warm_up && self.profiling_warm_up && nerf_core::profile::enabled() {
             // The loop prints the rest at the end: the two phases' steps cost differently.
             eprint!(
@@ -322,22 +296,7 @@ impl NsffTrainer {
             self.optim.skip(&host);
             return Ok(None);
         }
-        let (lr, static_lr) = (self.lr(), self.static_lr());
-        self.model.fields = if static_lr == lr {
-            self.optim.step(loss, lr, self.model.fields.clone(), &host)
-        } else {
-            let fields = &self.model.fields;
-            let (statics, dynamics) = (fields.static_field.host_params(), fields.dynamic_host_params());
-            self.optim.step_with_part(
-                loss,
-                lr,
-                fields.clone(),
-                &dynamics,
-                |f| &f.static_field,
-                static_lr,
-                &statics,
-            )
-        };
+        self.model.fields = self.optim.step(loss, self.lr(), self.model.fields.clone(), &host);
         self.step += 1;
         if self.model.occupancy.as_ref().is_some_and(|o| o.due(self.step)) {
             // One random training time of the bin per refreshed point: a cell the moving object
@@ -374,11 +333,7 @@ impl NsffTrainer {
                 self.n_rays = (want as usize).clamp(self.cfg.min_rays, self.cfg.rays.max(self.cfg.min_rays));
             }
             if static_samples > 0 {
-                let scale = match (warm_up, self.cfg.warm_up_batch_scale) {
-                    (true, Some(s)) => s,
-                    _ => self.cfg.static_batch_scale,
-                };
-                let want = adapt(self.n_static_rays, static_samples, scale);
+                let want = adapt(self.n_static_rays, static_samples, self.cfg.static_batch_scale);
                 self.n_static_rays = (want as usize).clamp(f.min_rays, f.max_rays);
             }
         }
@@ -394,14 +349,6 @@ impl NsffTrainer {
     /// The learning rate now.
     fn lr(&self) -> f64 {
         self.cfg.base.lr_at(self.lr_progress())
-    }
-
-    /// The static field's rate: `static_lr_final`'s schedule, else the common one.
-    fn static_lr(&self) -> f64 {
-        match self.cfg.static_lr_final {
-            Some(last) => nerf::config::exponential_lr(self.cfg.base.lr, last, self.lr_progress()),
-            None => self.lr(),
-        }
     }
 
     /// How far the learning rates have decayed, in [0, 1].
@@ -435,19 +382,12 @@ impl NsffTrainer {
         if now > self.cfg.warm_up_exit_rise * floor && now - floor > WARM_UP_EXIT_MIN_RISE {
             let progress = self.cfg.base.progress(self.step, self.elapsed);
             self.cfg.static_warm_up = progress;
-            let restart = self.cfg.warm_up_exit_restart;
-            if restart {
-                let (bounds, times) = (self.model.bounds.clone(), self.video.times.clone());
-                self.model = NsffModel::new(&self.cfg, bounds, times, self.has_dynamic(), &self.device);
-                self.optim = Optimizer::new(&self.cfg.base);
-            }
             self.note = Some(format!(
-                "static warm-up ended at step {} ({:.0} % of the budget): the occupancy grid filled up again from {:.1} % to {:.1} % (the views disagree: things move){}",
+                "static warm-up ended at step {} ({:.0} % of the budget): the occupancy grid filled up again from {:.1} % to {:.1} % (the views disagree: things move)",
                 self.step,
                 100.0 * progress,
                 100.0 * floor,
                 100.0 * now,
-                if restart { "; fields restarted" } else { "" }
             ));
         }
     }
@@ -467,79 +407,6 @@ impl NsffTrainer {
             times.push(0.5 * (lo + hi));
         }
         in_bin
-    }
-
-    /// Whether the masks are refined when the static warm-up ends (`mask_refine_quantile`): a
-    /// video with a dynamic field, a warm-up that has run, and masks to refine.
-    fn refines_masks(&self) -> bool {
-        self.cfg.mask_refine_quantile > 0.0
-            && self.has_dynamic()
-            && self.cfg.static_warm_up > 0.0
-            && self.step > 0
-            && self.video.motion_masks.iter().flatten().any(|&m| m)
-    }
-
-    /// Takes out of the motion masks the pixels the static field explains ([`crate::mask_refine`]).
-    fn refine_masks(&mut self) -> Result<()> {
-        self.model.settings.static_only = true;
-        let errors = self.static_errors();
-        self.model.settings.static_only = false;
-        let errors = errors?;
-        let v = &self.video;
-        let unmasked = (errors.iter().zip(&v.motion_masks))
-            .flat_map(|(e, m)| e.iter().zip(m).filter(|(_, m)| !**m).map(|(e, _)| *e));
-        let q = self.cfg.mask_refine_quantile;
-        let threshold = crate::mask_refine::quantile(unmasked, q).unwrap_or(f32::NEG_INFINITY);
-        let removed: Vec<Vec<bool>> = (errors.iter().zip(&v.motion_masks).zip(&v.frames))
-            .map(|((e, m), &f)| {
-                let width = v.dataset.views[f].image.width as usize;
-                crate::mask_refine::explained(m, e, width, threshold)
-            })
-            .collect();
-        let before = v.mask_fraction();
-        self.video.unmask(&removed);
-        self.note = Some(format!(
-            "motion masks refined by the static field: {:.1} % → {:.1} % of the pixels (a masked pixel leaves where its squared error ≤ {threshold:.2e}, the unmasked pixels' {q} quantile)",
-            100.0 * before,
-            100.0 * self.video.mask_fraction(),
-        ));
-        self.mask_refined = Some(removed);
-        Ok(())
-    }
-
-    /// Per frame (`[H*W]`), the squared colour error (mean over channels) of the model's render
-    /// at the frame's masked pixels and at up to [`REFINE_UNMASKED_PER_FRAME`] random unmasked
-    /// ones; `NaN` elsewhere.
-    fn static_errors(&self) -> Result<Vec<Vec<f32>>> {
-        let v = &self.video;
-        let mut rng = StdRng::seed_from_u64(self.cfg.base.seed ^ self.step as u64);
-        let mut errors = Vec::with_capacity(v.frames.len());
-        for (k, &f) in v.frames.iter().enumerate() {
-            let view = &v.dataset.views[f];
-            let mask = &v.motion_masks[k];
-            let (mut pixels, masked): (Vec<u32>, Vec<u32>) =
-                (0..mask.len() as u32).partition(|&p| !mask[p as usize]);
-            pixels.shuffle(&mut rng);
-            pixels.truncate(REFINE_UNMASKED_PER_FRAME);
-            pixels.extend(masked);
-            let rays = v.dataset.rays_for(&view.camera, pixels.iter().copied());
-            let out = crate::eval::render_rays_direct(
-                &self.model,
-                &rays,
-                v.times[k],
-                v.dataset.background,
-                crate::render::FlowMap::Skip,
-                &self.device,
-            )?;
-            let target = pixel_colours(view, &pixels);
-            let mut error = vec![f32::NAN; mask.len()];
-            for (i, &p) in pixels.iter().enumerate() {
-                let d = (0..3).map(|c| (out.rgb[3 * i + c] - target[3 * i + c]).powi(2));
-                error[p as usize] = d.sum::<f32>() / 3.0;
-            }
-            errors.push(error);
-        }
-        Ok(errors)
     }
 
     /// Whether this step trains the static field alone (`static_warm_up`).
@@ -685,9 +552,7 @@ impl NsffTrainer {
         if !moving_share {
             self.earned_readout.set(None);
         }
-        let share =
-            wts.still_dynamic > 0.0 || wts.dynamic_share > 0.0 || wts.static_claimed > 0.0 || moving_share;
-        let combined = render_combined(&self.model, rays, &samples, &q, ds.background, share, dev);
+        let combined = render_combined(&self.model, rays, &samples, &q, ds.background, moving_share, dev);
         let n_u = batch.n_uniform;
         let mse_cb = losses::mse(
             combined.rgb.clone().slice([0..n_u, 0..3]),
@@ -707,52 +572,11 @@ impl NsffTrainer {
             }
         }
         let mut loss = mse_cb.clone();
-        if wts.dynamic_share > 0.0 {
-            let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
-            loss = loss + losses::still_dynamic_share(share, vec![1.0; n_u]) * wts.dynamic_share;
-        }
-        if wts.still_dynamic > 0.0 {
-            let mut still = batch.mask_weights(&v.motion_masks, false);
-            still.truncate(n_u);
-            let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]);
-            loss = loss + losses::still_dynamic_share(share, still) * wts.still_dynamic;
-        }
-        if wts.static_claimed > 0.0 {
-            // The static field alone, from the query the combined render made, on the rays the
-            // combined render gives it.
-            let alone = Component::new(st.sigma.clone(), st.rgb.clone());
-            let rgb = self.render(rays, &samples, &[alone]).rgb.slice([0..n_u, 0..3]);
-            let share = combined.expect(DYNAMIC_SHARE).slice([0..n_u, 0..1]).detach();
-            let share = nerf_core::readback::read_back(share.inner(), "dynamic share")?;
-            let below = self.cfg.static_claimed_below;
-            let claimed = share
-                .iter()
-                .map(|&s| if s < below { (1.0 - s).clamp(0.0, 1.0) } else { 0.0 })
-                .collect();
-            let target = target.clone().slice([0..n_u, 0..3]);
-            let photo = losses::wmse(rgb, target, tensor(claimed, 1, dev));
-            loss = loss + photo * wts.static_claimed;
-        }
-        // Both terms walk the combined render's transmittance over the same host values.
-        let walked = (wts.hidden > 0.0 || wts.static_free_space > 0.0)
-            .then(|| losses::BlendedSamples::read(&st.sigma, &dy.sigma, &b_s, &gate))
-            .transpose()?;
-        if let Some(host) = walked.as_ref().filter(|_| wts.hidden > 0.0) {
-            let hidden = losses::hidden_dynamic_depth(host, dy.sigma.clone(), gate.clone(), &combined.layout);
+        if wts.hidden > 0.0 {
+            let host = losses::BlendedSamples::read(&st.sigma, &dy.sigma, &b_s, &gate)?;
+            let hidden =
+                losses::hidden_dynamic_depth(&host, dy.sigma.clone(), gate.clone(), &combined.layout);
             loss = loss + hidden * wts.hidden;
-        }
-        if let Some(host) = walked.as_ref().filter(|_| wts.static_free_space > 0.0) {
-            let margin = FRONT_MARGIN_STEPS * self.model.settings.march.step;
-            let front = losses::front_weights(
-                &host.sigma_st,
-                &host.sigma_dy,
-                &host.blend,
-                &combined.layout,
-                (&samples.t_start, &samples.t_end),
-                margin,
-            );
-            let free = losses::static_free_space(st.sigma.clone(), front, r_n);
-            loss = loss + free * wts.static_free_space;
         }
 
         // Dynamic-only render, also integrating the flowed points (for the part of the
@@ -775,32 +599,8 @@ impl NsffTrainer {
                 .with(X_NEXT, x_next.clone())
                 .with(X_PREV, x_prev.clone());
         }
-        if wts.depth_spread > 0.0 {
-            let t_sq = samples.t.iter().map(|t| t * t).collect();
-            dyn_component = dyn_component.with(DEPTH_SQ, tensor(t_sq, 1, dev));
-        }
         let dyn_only = self.render(rays, &samples, &[dyn_component]);
-        if wts.depth_spread > 0.0 {
-            let spread = losses::depth_spread(
-                dyn_only.depth.clone(),
-                dyn_only.expect(DEPTH_SQ),
-                dyn_only.opacity.clone(),
-                self.model.bounds.extent(),
-            );
-            loss = loss + spread * wts.depth_spread;
-        }
-        let dyn_photo = if self.cfg.dynamic_photo_masked {
-            let moving = batch.mask_weights(&v.motion_masks, true);
-            losses::wmse(dyn_only.rgb.clone(), target.clone(), tensor(moving, 1, dev))
-        } else if self.cfg.dynamic_photo_still < 1.0 {
-            // Still rays count less; moving rays weigh as in the plain mean.
-            let still = self.cfg.dynamic_photo_still;
-            let w = batch.per_ray(|k, p| if v.motion_masks[k][p as usize] { 1.0 } else { still });
-            losses::row_weighted_mse(dyn_only.rgb.clone(), target.clone(), tensor(w, 1, dev))
-        } else {
-            losses::mse(dyn_only.rgb.clone(), target.clone())
-        };
-        loss = loss + dyn_photo * wts.dynamic_photo;
+        loss = loss + losses::mse(dyn_only.rgb.clone(), target.clone()) * wts.dynamic_photo;
         if moving_share {
             // Open the blend where the dynamic field already fits the mover better, shut it on
             // the still rays.
@@ -850,7 +650,7 @@ impl NsffTrainer {
         // interval in the ray parameter t, for the consistency term against the neighbour's
         // time. The render's interval is a distance, δ·|d|: directions have z = −1, so it is
         // 1 to 1.10 times this at a 40° field of view.
-        let consistency_from = (wts.field_consistency > 0.0 || wts.still_persistence > 0.0).then(|| {
+        let consistency_from = (wts.field_consistency > 0.0).then(|| {
             let deltas = samples
                 .t_end
                 .iter()
@@ -863,13 +663,6 @@ impl NsffTrainer {
                 tensor(deltas, 1, dev),
             )
         });
-        if let (Some(here), true) = (&consistency_from, wts.still_persistence > 0.0) {
-            let flows = (flow_next.clone(), flow_prev.clone());
-            let still = span("nsff_still", || {
-                self.still_persistence(dynamic, &q, flows, here, k, rng)
-            })?;
-            loss = loss + still * wts.still_persistence;
-        }
         // Neighbouring frames: warped renders, disocclusion weights, cycle, flow and consistency
         // terms.
         let (warp_to, warp_weight) = pick_neighbours(
@@ -878,16 +671,6 @@ impl NsffTrainer {
             rng,
         );
         for (j, forward) in warp_to {
-            let chain_weight = self.cfg.warp_chain_weight;
-            let (hops, chained) = if chain_weight > 0.0 {
-                let far = warp_hops(k, v.frames.len(), forward, (2, self.cfg.warp_hops), rng);
-                (1, (far > 1).then_some(far))
-            } else {
-                (
-                    warp_hops(k, v.frames.len(), forward, (1, self.cfg.warp_hops), rng),
-                    None,
-                )
-            };
             let (flow, prob, x_j, flowed) = if forward {
                 (
                     flow_next.clone(),
@@ -909,24 +692,10 @@ impl NsffTrainer {
                     &batch,
                     &samples,
                     dirs,
-                    (j, forward, hops),
-                    (flow.clone(), prob.clone(), x_j.clone()),
-                    consistency_from.as_ref().filter(|_| wts.field_consistency > 0.0),
-                    true,
-                )? * warp_weight;
-            if let Some(far) = chained {
-                let photometric = self.warp_terms(
-                    dynamic,
-                    &batch,
-                    &samples,
-                    dirs,
-                    (j, forward, far),
+                    (j, forward),
                     (flow, prob, x_j),
-                    None,
-                    false,
-                )?;
-                loss = loss + photometric * (chain_weight * f64::from(warp_weight));
-            }
+                    consistency_from.as_ref(),
+                )? * warp_weight;
             // Projected scene flow against the 2-D optical flow of this pixel.
             let prior = if forward { &v.flow_fwd[k] } else { &v.flow_bwd[k] };
             if let (Some(of), true) = (prior, wts.optical_flow > 0.0) {
@@ -959,11 +728,9 @@ impl NsffTrainer {
         if wts.entropy > 0.0 {
             loss = loss + losses::entropy(b_s * gate) * wts.entropy;
         }
-        if wts.sparsity > 0.0 || wts.blend_hole > 0.0 {
-            let sparse = span("nsff_sparsity", || {
-                self.random_point_terms(dynamic, v.times[k], rng)
-            })?;
-            loss = loss + sparse;
+        if wts.sparsity > 0.0 {
+            let sparse = span("nsff_sparsity", || self.sparsity(dynamic, v.times[k], rng))?;
+            loss = loss + sparse * wts.sparsity;
         }
         let mut static_samples = 0;
         // The static batch draws from outside the motion masks; a jumping camera has none.
@@ -979,14 +746,13 @@ impl NsffTrainer {
         Ok(Some((loss, stats(m, r_n, s_n), static_samples)))
     }
 
-    /// The terms towards neighbouring frame `j` (the next frame when `forward`), reached in
-    /// `hops` frames: the photometric loss of the warped render (the dynamic field at the time
-    /// `hops` frames on, at the points flowed there), weighted by visibility Ŵ = Σ sg(w)·(1 − p)
-    /// with p towards `j` (gradients reach p only), the cycle term at `j` and the disocclusion
-    /// regulariser; with `consistency` (this frame's effective dynamic density `[S, 1]`, colour
-    /// `[S, 3]` and march intervals `[S, 1]`) also [`losses::field_consistency`] against the
-    /// warped frame's at the flowed points. `x_j`: the samples flowed to `j`. Without
-    /// `flow_terms`, the warped photometric term alone (a chained warp beside the neighbour's).
+    /// The terms towards neighbouring frame `j` (the next frame when `forward`): the photometric
+    /// loss of the warped render (the dynamic field at `j`'s time, at the points flowed there),
+    /// weighted by visibility Ŵ = Σ sg(w)·(1 − p) with p towards `j` (gradients reach p only),
+    /// the cycle term at `j` and the disocclusion regulariser; with `consistency` (this frame's
+    /// effective dynamic density `[S, 1]`, colour `[S, 3]` and march intervals `[S, 1]`) also
+    /// [`losses::field_consistency`] against `j`'s at the flowed points. `x_j`: the samples
+    /// flowed to `j`.
     #[allow(clippy::too_many_arguments)]
     fn warp_terms(
         &self,
@@ -994,106 +760,35 @@ impl NsffTrainer {
         batch: &FrameBatch,
         samples: &RaySamples,
         dirs: &[f32],
-        (j, forward, hops): (usize, bool, usize),
+        (j, forward): (usize, bool),
         (flow, prob, x_j): (Tensor<2>, Tensor<2>, Tensor<2>),
         consistency: Option<&(Tensor<2>, Tensor<2>, Tensor<2>)>,
-        flow_terms: bool,
     ) -> Result<Tensor<1>> {
         let wts = &self.cfg.weights;
-        let times = &self.video.times;
-        let far = if forward { j + hops - 1 } else { j + 1 - hops };
-        let n = dirs.len() / 3;
-        let (x_far, back_at_j) = chain_flow(x_j, hops, |x, h| {
-            let frame = if forward { j + h - 1 } else { j + 1 - h };
-            let t = crate::field::time_column(times[frame], n, &self.device);
-            let (prev, next) = dynamic.scene_flow(x, t, dirs);
-            if forward { (next, prev) } else { (prev, next) }
-        });
-        let dj = query_dynamic(dynamic, x_far, times[far], dirs);
+        let dj = query_dynamic(dynamic, x_j, self.video.times[j], dirs);
         let warped = self.render(
             &batch.rays,
             samples,
             &[Component::new(dj.sigma.clone(), dj.rgb.clone())],
         );
-        // p is the disocclusion towards the neighbour: a chained warp reads it as its weight
-        // but must not train it for a frame it does not model.
-        let seen = if hops > 1 {
-            prob.clone().detach()
-        } else {
-            prob.clone()
-        };
         let vis = self
             .render(
                 &batch.rays,
                 samples,
-                &[Component::channels_only(dj.sigma.clone().detach()).with(VISIBLE, seen.neg() + 1.0)],
+                &[Component::channels_only(dj.sigma.clone().detach())
+                    .with(VISIBLE, prob.clone().neg() + 1.0)],
             )
             .expect(VISIBLE);
         let mut loss = losses::wmse(warped.rgb, batch.target.clone(), vis) * wts.dynamic_photo;
-        if !flow_terms {
-            return Ok(loss);
-        }
-        let back = back_at_j.unwrap_or_else(|| dj.extras.expect(if forward { FLOW_PREV } else { FLOW_NEXT }));
+        let back = dj.extras.expect(if forward { FLOW_PREV } else { FLOW_NEXT });
         loss = loss + losses::cycle(flow, back, prob.clone()) * wts.cycle + prob.abs().mean() * wts.prob_reg;
         if let Some((density, rgb, deltas)) = consistency {
             let there = (dj.extras.expect(GATE) * dj.sigma.clone(), dj.rgb.clone());
             loss = loss
-                + losses::field_consistency((density.clone(), rgb.clone()), there, deltas.clone(), None)
+                + losses::field_consistency((density.clone(), rgb.clone()), there, deltas.clone())
                     * wts.field_consistency;
         }
         Ok(loss)
-    }
-
-    /// `weights.still_persistence`: at a random `still_share` of the samples, the dynamic field
-    /// at (x, t) (`here`: effective density `[S, 1]`, colour `[S, 3]`, march intervals `[S, 1]`)
-    /// against the same x at another random frame's time, weighted per sample by
-    /// [`losses::still_gate`] of the scene flows (`flows`: next and previous, `[S, 3]`) at both.
-    fn still_persistence(
-        &self,
-        dynamic: &DynamicField,
-        q: &crate::render::SpaceTimeQuery,
-        flows: (Tensor<2>, Tensor<2>),
-        here: &(Tensor<2>, Tensor<2>, Tensor<2>),
-        k: usize,
-        rng: &mut StdRng,
-    ) -> Result<Tensor<1>> {
-        let (v, dev) = (&self.video, &self.device);
-        let s_n = q.dirs.len() / 3;
-        let n_f = v.times.len();
-        if n_f < 2 || s_n == 0 {
-            return Ok(Tensor::zeros([1], dev));
-        }
-        let n = ((s_n as f32 * self.cfg.still_share).ceil() as usize).clamp(1, s_n);
-        let mut order: Vec<usize> = (0..s_n).collect();
-        let (picked, _) = order.partial_shuffle(rng, n);
-        let dirs = rows3(&q.dirs, picked);
-        let ids: Vec<i64> = picked.iter().map(|&i| i as i64).collect();
-        let ids = Tensor::<1, Int>::from_data(TensorData::new(ids, [n]), dev);
-        let pick = |t: &Tensor<2>| t.clone().select(0, ids.clone());
-        let other = {
-            let j = rng.random_range(0..n_f - 1);
-            if j >= k { j + 1 } else { j }
-        };
-        let there = query_dynamic(dynamic, pick(&q.x), v.times[other], &dirs);
-        // The gate is a constant weight: detach before selecting, so no graph is built for it
-        // (`inner` alone drops the graph of the tensors read back as they are).
-        let host = |t: Tensor<2>| nerf_core::readback::read_back(t.inner(), "scene flow");
-        let flows = [
-            host(pick(&flows.0.detach()))?,
-            host(pick(&flows.1.detach()))?,
-            host(there.extras.expect(FLOW_NEXT))?,
-            host(there.extras.expect(FLOW_PREV))?,
-        ];
-        let eps = self.cfg.still_flow_scale * self.model.bounds.extent();
-        let gate = losses::still_gate(&flows.iter().map(Vec::as_slice).collect::<Vec<_>>(), eps);
-        let (density, rgb, deltas) = here;
-        let b = (there.extras.expect(GATE) * there.sigma.clone(), there.rgb.clone());
-        Ok(losses::field_consistency(
-            (pick(density), pick(rgb)),
-            b,
-            pick(deltas),
-            Some(tensor(gate, 1, dev)),
-        ))
     }
 
     /// Scene-flow priors: small, temporally smooth (f_next + f_prev ≈ 0) and spatially smooth
@@ -1127,10 +822,10 @@ impl NsffTrainer {
         loss
     }
 
-    /// [`losses::sparsity`] and [`losses::blend_hole`], weighted, at `sparsity_points` random
-    /// points at time `time`: drawn from occupied cells when there is a grid (the rest of the
-    /// box is skipped by rendering anyway), else uniformly in the box.
-    fn random_point_terms(&self, dynamic: &DynamicField, time: f32, rng: &mut StdRng) -> Result<Tensor<1>> {
+    /// [`losses::sparsity`] (unweighted) at `sparsity_points` random points at time `time`:
+    /// drawn from occupied cells when there is a grid (the rest of the box is skipped by
+    /// rendering anyway), else uniformly in the box.
+    fn sparsity(&self, dynamic: &DynamicField, time: f32, rng: &mut StdRng) -> Result<Tensor<1>> {
         let [lo, hi] = self.model.bounds.aabb;
         let mut pos = Vec::with_capacity(3 * self.cfg.sparsity_points);
         for _ in 0..self.cfg.sparsity_points {
@@ -1157,28 +852,21 @@ impl NsffTrainer {
             // Stratified samples: their mean spacing.
             None => (self.model.bounds.far - self.model.bounds.near) / self.cfg.samples as f32,
         };
-        let (b_s, gate, wts) = (st.extras.expect(BLEND), dy.extras.expect(GATE), &self.cfg.weights);
-        let sparse = losses::sparsity(b_s.clone(), gate.clone(), dy.sigma.clone(), step) * wts.sparsity;
-        if wts.blend_hole == 0.0 {
-            return Ok(sparse);
-        }
-        let hole = losses::blend_hole(b_s, gate, st.sigma, dy.sigma, step);
-        Ok(sparse + hole * wts.blend_hole)
+        let (b_s, gate) = (st.extras.expect(BLEND), dy.extras.expect(GATE));
+        Ok(losses::sparsity(b_s, gate, dy.sigma, step))
     }
 
     /// The static batch: the static pipeline's step on `n_static_rays` pixels outside the motion
-    /// masks. During the static warm-up (`warm_up`) it also draws masked pixels
-    /// ([`Self::warm_up_masked_share`]), and with `warm_up_random_background` RGBA frames
-    /// composite over a random colour per ray. Its loss, loss value, ray and sample counts;
-    /// `None` when no ray has samples.
+    /// masks (and, with `masked_static`, inside them). Its loss, loss value, ray and sample
+    /// counts; `None` when no ray has samples.
     fn static_batch(
         &self,
         warm_up: bool,
         rng: &mut StdRng,
     ) -> Result<Option<(Tensor<1>, f64, usize, usize)>> {
-        let (masked_static, masked_share) = self.static_batch_masked(warm_up);
-        let pixels = self.still_pixels(self.n_static_rays.max(1), masked_share, rng);
-        let (rays, mut target, alpha) = self.pixel_rays(&pixels);
+        let masked_static = self.static_batch_masked(warm_up);
+        let pixels = self.still_pixels(self.n_static_rays.max(1), masked_static, rng);
+        let (rays, target) = self.pixel_rays(&pixels);
         // The masked rays in `pixel_rays`' order, for `masked_static`'s robust weights.
         let masks = &self.video.motion_masks;
         let masked: Option<Vec<bool>> = (masked_static > 0.0).then(|| {
@@ -1186,85 +874,21 @@ impl NsffTrainer {
                 .flat_map(|(k, ps)| ps.iter().map(move |&p| masks[k][p as usize]))
                 .collect()
         });
-        let background = self.static_background(warm_up, &mut target, &alpha, masked.as_deref(), rng);
+        let background = Background::from_option(self.video.dataset.background);
         let target = tensor(target, 3, &self.device);
-        let masked = masked.as_deref().map(|rays| MaskedRays {
-            rays,
-            blend: !warm_up && self.has_dynamic(),
-        });
         let still = span("nsff_static_batch", || {
-            self.static_photometric(&rays, target, &background, masked, rng)
+            self.static_photometric(&rays, target, &background, masked.as_deref(), rng)
         })?;
         Ok(still.map(|(loss, m, n)| (loss, m, rays.len(), n)))
     }
 
-    /// The static batch's `masked_static` now (0 after the warm-up with
-    /// `masked_static_warm_up_only`), and the share of the masked pixels it draws (falling
-    /// through the warm-up with `masked_static_falls`).
-    fn static_batch_masked(&self, warm_up: bool) -> (f32, f32) {
-        let masked_static = self.cfg.masked_static;
-        if !warm_up {
-            let after = if self.cfg.masked_static_warm_up_only {
-                0.0
-            } else {
-                masked_static
-            };
-            return (after, after);
-        }
-        let falls = if self.cfg.masked_static_falls {
-            self.warm_up_left()
+    /// The static batch's `masked_static` now: 0 after the warm-up with
+    /// `masked_static_warm_up_only`.
+    fn static_batch_masked(&self, warm_up: bool) -> f32 {
+        if !warm_up && self.cfg.masked_static_warm_up_only {
+            0.0
         } else {
-            1.0
-        };
-        (
-            masked_static,
-            self.warm_up_masked_share().max(masked_static * falls),
-        )
-    }
-
-    /// The share of masked pixels the static warm-up draws at this step: `warm_up_masked` at its
-    /// start, falling linearly to 0 at its end, so that its last part trains on unmasked pixels
-    /// only and unlearns what the movers left in the static field.
-    fn warm_up_masked_share(&self) -> f32 {
-        self.cfg.warm_up_masked * self.warm_up_left()
-    }
-
-    /// The share of the static warm-up still to run: 1 at its start, 0 from its end on.
-    fn warm_up_left(&self) -> f32 {
-        let warm_up = self.cfg.static_warm_up.max(1e-9);
-        let left = 1.0 - self.cfg.base.progress(self.step, self.elapsed) / warm_up;
-        left.clamp(0.0, 1.0) as f32
-    }
-
-    /// What the static batch composites over: with `static_random_background`, or during the
-    /// warm-up with `warm_up_random_background`, and RGBA frames (`alpha` per ray), a random
-    /// colour per ray that `target` (`[n * 3]`) is recomposited over; with
-    /// `masked_random_background`, such a colour on the `masked` rays only; else the dataset's
-    /// background.
-    fn static_background(
-        &self,
-        warm_up: bool,
-        target: &mut [f32],
-        alpha: &[f32],
-        masked: Option<&[bool]>,
-        rng: &mut StdRng,
-    ) -> Background {
-        let all = self.cfg.static_random_background || (warm_up && self.cfg.warm_up_random_background);
-        let only = masked.filter(|m| !all && self.cfg.masked_random_background && m.len() == alpha.len());
-        match self.video.dataset.background {
-            Some(base) if (all || only.is_some()) && 3 * alpha.len() == target.len() => {
-                // An unmasked ray counts as opaque here: its target stays as read.
-                let keep = |r: usize| only.is_some_and(|m| !m[r]);
-                let a = (alpha.iter().enumerate()).map(|(r, &a)| if keep(r) { 1.0 } else { a });
-                let mut bg = nerf::trainer::random_background(target, a, base, rng);
-                for (r, c) in bg.chunks_exact_mut(3).enumerate() {
-                    if keep(r) {
-                        c.copy_from_slice(&base);
-                    }
-                }
-                Background::PerRay(tensor(bg, 3, &self.device))
-            }
-            base => Background::from_option(base),
+            self.cfg.masked_static
         }
     }
 
@@ -1290,26 +914,18 @@ impl NsffTrainer {
         per_frame
     }
 
-    /// The rays of `pixels` (per frame), their colours (`[n * 3]`) and their alpha (`[n]`; empty
-    /// unless every frame has one).
-    fn pixel_rays(&self, pixels: &[Vec<u32>]) -> (Rays, Vec<f32>, Vec<f32>) {
+    /// The rays of `pixels` (per frame) and their colours (`[n * 3]`).
+    fn pixel_rays(&self, pixels: &[Vec<u32>]) -> (Rays, Vec<f32>) {
         let v = &self.video;
         let n = pixels.iter().map(Vec::len).sum();
         let mut rays = Rays::with_capacity(n);
         let mut target = Vec::with_capacity(3 * n);
-        let mut alpha = Vec::with_capacity(n);
         for (k, pixels) in pixels.iter().enumerate().filter(|(_, p)| !p.is_empty()) {
             let view = &v.dataset.views[v.frames[k]];
             rays.extend(&v.dataset.rays_for(&view.camera, pixels.iter().copied()));
             target.extend(pixel_colours(view, pixels));
-            if let Some(a) = &view.alpha {
-                alpha.extend(pixels.iter().map(|&p| a[p as usize]));
-            }
         }
-        if alpha.len() != rays.len() {
-            alpha.clear();
-        }
-        (rays, target, alpha)
+        (rays, target)
     }
 
     /// The static field alone on `rays` against `target` (`[R, 3]`): the static pipeline's
@@ -1321,7 +937,7 @@ impl NsffTrainer {
         rays: &Rays,
         target: Tensor<2>,
         background: &Background,
-        masked: Option<MaskedRays>,
+        masked: Option<&[bool]>,
         rng: &mut StdRng,
     ) -> Result<Option<(Tensor<1>, f64, usize)>> {
         // Rays of mixed times (the static batch), or a model without time bins: the union.
@@ -1333,36 +949,13 @@ impl NsffTrainer {
         let x = tensor(samples.positions(rays), 3, &self.device);
         let dirs = samples.per_sample3(&rays.viewdirs());
         let st = self.model.fields.static_field.query(FieldQuery::new(x, &dirs));
-        let blend_weight = self.cfg.weights.masked_blend;
-        // Kept for the masked rays' blend term, rendered only once the batch has masked rays.
-        let blend = (blend_weight > 0.0).then(|| (st.sigma.clone().detach(), st.extras.expect(BLEND)));
         let out = self.render_over(rays, &samples, &[Component::new(st.sigma, st.rgb)], background);
-        let (photo, blend_term) = match masked {
-            Some(m) if m.rays.iter().any(|&m| m) => {
-                let (photo, w) = robust_mse(out.rgb, target, m.rays, self.cfg.masked_static_scale)?;
-                // The masked rays the static field explains (robust weight above 1/2) only.
-                let n = m.rays.iter().filter(|&&m| m).count() as f32;
-                let blend_term = blend.filter(|_| m.blend).map(|(sigma, blend)| {
-                    // The blend along each ray under the static render's weights, held fixed.
-                    let channel = Component::channels_only(sigma).with(BLEND, blend);
-                    let b = self
-                        .render_over(rays, &samples, &[channel], background)
-                        .expect(BLEND);
-                    let w: Vec<f32> = (w.iter().zip(m.rays))
-                        .map(|(&w, &m)| if m { (2.0 * w - 1.0).max(0.0) / n } else { 0.0 })
-                        .collect();
-                    (b * tensor(w, 1, &self.device)).sum() * blend_weight
-                });
-                (photo, blend_term)
-            }
-            _ => (losses::mse(out.rgb, target), None),
+        let photo = match masked {
+            Some(m) if m.iter().any(|&m| m) => robust_mse(out.rgb, target, m, self.cfg.masked_static_scale)?,
+            _ => losses::mse(out.rgb, target),
         };
         let m = read_scalar(photo.clone().inner(), "loss")?;
-        let loss = match blend_term {
-            Some(term) => photo + term,
-            None => photo,
-        };
-        Ok(Some((loss, m, s_n)))
+        Ok(Some((photo, m, s_n)))
     }
 
     /// Trains until a budget is reached (the static pipeline's loop).
@@ -1410,13 +1003,11 @@ impl NsffTrainer {
 const WARM_UP_EXIT_MIN_RISE: f32 = 0.1;
 
 /// Channels of the training renders beyond colour: the flowed points Σw(x + f) towards the next
-/// and previous frame, the disparity-like value of the depth prior, Σw·t² of the depth spread,
-/// and the warped render's visibility weight.
+/// and previous frame, the disparity-like value of the depth prior, and the warped render's
+/// visibility weight.
 const X_NEXT: &str = "x_next";
 const X_PREV: &str = "x_prev";
 const DISPARITY: &str = "disparity";
-/// Σ w·t² of the dynamic-only render, for `weights.depth_spread`.
-const DEPTH_SQ: &str = "depth_sq";
 const VISIBLE: &str = "visible";
 
 /// The neighbours of frame `k` (of `frames`) that a step's warp terms compare it with, each
@@ -1443,43 +1034,6 @@ fn pick_neighbours(mut all: Vec<(usize, bool)>, keep: usize, rng: &mut StdRng) -
     all.shuffle(rng);
     all.truncate(keep);
     (all, n as f32 / keep as f32)
-}
-
-/// How many frames a warp from frame `k` (of `frames`) towards the next (`forward`) or the
-/// previous frame reaches: uniform in `least` to `most` (1 ≤ `least`), cut where the video
-/// ends that way; 1 when even `least` leaves it. Draws nothing from `rng` when only one value
-/// is possible, so runs with `warp_hops` = 1 keep their random streams.
-fn warp_hops(
-    k: usize,
-    frames: usize,
-    forward: bool,
-    (least, most): (usize, usize),
-    rng: &mut StdRng,
-) -> usize {
-    let room = if forward { frames.saturating_sub(k + 1) } else { k };
-    let most = most.min(room);
-    if most <= least {
-        return if most == least { least } else { 1 };
-    }
-    rng.random_range(least..=most)
-}
-
-/// Carries points `x_j` (`[S, 3]`, already at the first frame of a warp) on for `hops` − 1 more
-/// frames: hop h (1-based, h < `hops`) adds the onward flow that `flow(x, h)` returns as
-/// (onward, back) at the h-th frame. The chained points, and the back flow at the first frame
-/// when there was a hop (for the cycle term; `None` for `hops` 1, whose field query has it).
-fn chain_flow(
-    x_j: Tensor<2>,
-    hops: usize,
-    mut flow: impl FnMut(Tensor<2>, usize) -> (Tensor<2>, Tensor<2>),
-) -> (Tensor<2>, Option<Tensor<2>>) {
-    let (mut x, mut back_at_j) = (x_j, None);
-    for h in 1..hops {
-        let (onward, back) = flow(x.clone(), h);
-        back_at_j.get_or_insert(back);
-        x = x + onward;
-    }
-    (x, back_at_j)
 }
 
 /// Per-sample value whose render the depth prior compares with monocular disparity: 1/t for a
@@ -1536,27 +1090,12 @@ fn ray_errors(rgb: &Tensor<2>, target: &Tensor<2>) -> Result<Vec<f32>> {
 }
 
 /// The mean squared error of `rgb` against `target` (`[R, 3]`), each ray weighted by
-/// [`losses::robust_ray_weights`] of its error (held fixed) given which rays are `masked`;
-/// and those weights.
-fn robust_mse(
-    rgb: Tensor<2>,
-    target: Tensor<2>,
-    masked: &[bool],
-    scale: f32,
-) -> Result<(Tensor<1>, Vec<f32>)> {
+/// [`losses::robust_ray_weights`] of its error (held fixed) given which rays are `masked`.
+fn robust_mse(rgb: Tensor<2>, target: Tensor<2>, masked: &[bool], scale: f32) -> Result<Tensor<1>> {
     let errors = ray_errors(&rgb, &target)?;
     let w = losses::robust_ray_weights(&errors, masked, scale);
     let dev = rgb.device();
-    Ok((losses::wmse(rgb, target, tensor(w.clone(), 1, &dev)), w))
-}
-
-/// The static batch's masked rays (`masked_static`): per ray, whether it lies inside its
-/// frame's motion mask, and whether `weights.masked_blend` applies (after the warm-up, with a
-/// dynamic field).
-#[derive(Clone, Copy)]
-struct MaskedRays<'a> {
-    rays: &'a [bool],
-    blend: bool,
+    Ok(losses::wmse(rgb, target, tensor(w, 1, &dev)))
 }
 
 fn stats(mse: f64, rays: usize, samples: usize) -> StepStats {
@@ -1684,7 +1223,7 @@ mod tests {
         let rgb = [0.2f32, 0.4, 0.6, 0.5, 0.5, 0.5, 0.9, 0.1, 0.3, 0.0, 0.7, 0.2];
         let target = [0.25f32, 0.4, 0.5, 0.5, 0.6, 0.45, 0.1, 0.1, 0.9, 0.05, 0.65, 0.2];
         let masked = [false, false, true, true];
-        let (got, weights) = robust_mse(
+        let got = robust_mse(
             tensor(rgb.to_vec(), 3, &dev),
             tensor(target.to_vec(), 3, &dev),
             &masked,
@@ -1705,9 +1244,6 @@ mod tests {
             .collect();
         let want = (0..4).map(|r| w[r] * e[r]).sum::<f64>() / (3.0 * w.iter().sum::<f64>());
         assert!((got - want).abs() < 1e-6 * want.max(1e-3), "{got} against {want}");
-        for (g, w) in weights.iter().zip(&w) {
-            assert!((*g as f64 - w).abs() < 1e-6, "weights {weights:?} against {w:?}");
-        }
         // Ray 2 is far off (e = 1.0), so the loss is below the unweighted mean.
         let plain = e.iter().sum::<f64>() / 12.0;
         assert!(got < 0.5 * plain, "{got} against the unweighted {plain}");
@@ -1782,27 +1318,6 @@ mod tests {
         });
     }
 
-    /// So does the still-matter term, which compares it with itself at another time (weights 1
-    /// and 2: the term draws random numbers, so both runs must draw the same ones).
-    #[test]
-    fn the_still_term_reaches_the_dynamic_field_only() {
-        reaches_the_dynamic_field_only("nsff-still", [1.0, 2.0], |cfg, w| {
-            cfg.weights.still_persistence = w;
-            // A gate wide open: a barely trained field's flows are not yet near zero.
-            cfg.still_flow_scale = 10.0;
-        });
-    }
-
-    /// So does the chained warp beside the neighbour's (weights 0.5 and 1: both runs draw the
-    /// same distances).
-    #[test]
-    fn the_chained_warp_reaches_the_dynamic_field_only() {
-        reaches_the_dynamic_field_only("nsff-chained-warp", [0.5, 1.0], |cfg, w| {
-            cfg.warp_hops = 3;
-            cfg.warp_chain_weight = w;
-        });
-    }
-
     /// One step's static and dynamic grid gradients with a term at `weights[0]` and at
     /// `weights[1]` (`set` applies one): the same static gradient, a different dynamic one.
     fn reaches_the_dynamic_field_only(name: &str, weights: [f64; 2], set: impl Fn(&mut NsffConfig, f64)) {
@@ -1839,102 +1354,6 @@ mod tests {
     /// Gradients `with` a term differ from those `without` it by over 1e-4 of their largest.
     fn moved(with: &[f32], without: &[f32], what: &str) {
         assert!(max_abs_diff(with, without) > 1e-4 * max_abs(without), "{what}");
-    }
-
-    /// The masked rays' blend term (`weights.masked_blend`) moves the static field's blend
-    /// head (and through it the static grid), never the dynamic field; without masked rays in
-    /// the static batch (`masked_static` 0) it does nothing.
-    #[test]
-    fn the_masked_blend_term_reaches_the_static_field_only() {
-        let (dir, mut t) = space_time_trainer("nsff-masked-blend", |_| {});
-        assert_eq!(t.cfg.masked_static, 0.0, "opt-in");
-        let mut grads = |share: f32, weight: f64| {
-            (t.cfg.masked_static, t.cfg.weights.masked_blend) = (share, weight);
-            static_and_dynamic_grads(&t, 11)
-        };
-        let (static_without, dynamic_without) = grads(1.0, 0.0);
-        let (static_with, dynamic_with) = grads(1.0, 1.0);
-        unmoved(
-            &dynamic_with,
-            &dynamic_without,
-            "the blend term moved the dynamic grid",
-        );
-        moved(
-            &static_with,
-            &static_without,
-            "the blend term did not reach the static grid",
-        );
-        let (static_off, _) = grads(0.0, 0.0);
-        let (static_off_with, _) = grads(0.0, 1.0);
-        unmoved(
-            &static_off_with,
-            &static_off,
-            "with no masked rays the blend term still moved the static grid",
-        );
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-
-    /// The free-space term (`weights.static_free_space`) moves the static grid and never the
-    /// dynamic one: its weights are read from the combined render and held fixed.
-    #[test]
-    fn the_free_space_term_reaches_the_static_field_only() {
-        let (dir, mut t) = space_time_trainer("nsff-free-space", |_| {});
-        assert_eq!(t.cfg.weights.static_free_space, 0.0, "opt-in");
-        for _ in 0..20 {
-            t.train_step().unwrap();
-        }
-        let mut grads = |weight: f64| {
-            t.cfg.weights.static_free_space = weight;
-            static_and_dynamic_grads(&t, 13)
-        };
-        let (static_without, dynamic_without) = grads(0.0);
-        let (static_with, dynamic_with) = grads(1.0);
-        unmoved(
-            &dynamic_with,
-            &dynamic_without,
-            "the free-space term moved the dynamic grid",
-        );
-        moved(
-            &static_with,
-            &static_without,
-            "the free-space term did not reach the static grid",
-        );
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-
-    /// The static field's photometric term on the rays the combined render gives it reaches the
-    /// static field and not the dynamic field: it renders the static query alone.
-    #[test]
-    fn the_static_claim_reaches_the_static_field_only() {
-        let (dir, mut t) = space_time_trainer("nsff-static-claim", |_| {});
-        let mut grads = |claimed: f64, below: f32| {
-            (t.cfg.weights.static_claimed, t.cfg.static_claimed_below) = (claimed, below);
-            static_and_dynamic_grads(&t, 5)
-        };
-        let (static_without, dynamic_without) = grads(0.0, 1.0);
-        let (diff, scale) = (max_abs_diff, max_abs);
-        assert!(
-            scale(&dynamic_without) > 0.0,
-            "no gradient reached the dynamic grid"
-        );
-        for below in [1.0, 0.1] {
-            let (static_with, dynamic_with) = grads(1.0, below);
-            assert!(
-                diff(&dynamic_with, &dynamic_without) <= 1e-6 * scale(&dynamic_without),
-                "below {below}: the static term moved the dynamic grid"
-            );
-            assert!(
-                diff(&static_with, &static_without) > 1e-3 * scale(&static_without),
-                "below {below}: the static term did not reach the static grid"
-            );
-        }
-        // A ray whose dynamic share is not below the threshold is not claimed.
-        let (static_none, _) = grads(1.0, 1e-12);
-        assert!(
-            diff(&static_none, &static_without) <= 1e-6 * scale(&static_without),
-            "rays above the threshold reached the static grid"
-        );
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     /// A video in the fast preset takes its scene flow from its own grid, trained by the
@@ -1987,104 +1406,6 @@ mod tests {
             crate::config::LossWeights::default().optical_flow
         );
         let _ = std::fs::remove_dir_all(&dir);
-    }
-
-    /// A warp's distance is uniform in 1..=`warp_hops`, cut where the video ends, and at 1
-    /// (the default) the random stream is left as it was.
-    #[test]
-    fn warp_hops_stay_in_the_video_and_cover_their_range() {
-        let mut rng = StdRng::seed_from_u64(4);
-        let before = rng.clone().random::<u64>();
-        for (k, forward) in [(3, true), (3, false), (0, true), (9, false)] {
-            assert_eq!(warp_hops(k, 10, forward, (1, 1), &mut rng), 1);
-        }
-        // At the last frame forward (or the first backward) there is no room: still 1; a
-        // chained warp (at least 2) with room for 2 only takes 2, and with room for 1 only says 1.
-        assert_eq!(warp_hops(9, 10, true, (1, 3), &mut rng), 1);
-        assert_eq!(warp_hops(0, 10, false, (1, 3), &mut rng), 1);
-        assert_eq!(warp_hops(7, 10, true, (2, 3), &mut rng), 2);
-        assert_eq!(warp_hops(1, 10, false, (2, 3), &mut rng), 1);
-        assert_eq!(
-            rng.random::<u64>(),
-            before,
-            "no draw when only one value is possible"
-        );
-        for (k, forward, least, max, room) in [
-            (5, true, 1, 3, 3),
-            (8, true, 1, 3, 1),
-            (7, true, 1, 3, 2),
-            (1, false, 1, 3, 1),
-            (2, false, 1, 4, 2),
-            (5, true, 2, 4, 4),
-            (3, false, 2, 4, 3),
-        ] {
-            let mut seen = vec![0usize; max + 1];
-            for _ in 0..600 {
-                seen[warp_hops(k, 10, forward, (least, max), &mut rng)] += 1;
-            }
-            let kinds = room.min(max) + 1 - least;
-            for (h, &c) in seen.iter().enumerate() {
-                if (least..=room).contains(&h) {
-                    assert!(c > 600 / kinds / 2, "frame {k}, {h} hops drawn {c} times of 600");
-                } else {
-                    assert_eq!(c, 0, "frame {k}: {h} hops are out of range");
-                }
-            }
-        }
-    }
-
-    /// Chained points follow the flow field frame by frame: against a float64 walk of the
-    /// same flow (a rotation about z with a frame-dependent rate), with the back flow taken at
-    /// the first frame only.
-    #[test]
-    fn chained_points_follow_the_flow_frame_by_frame() {
-        let device = Device::flex();
-        let rate = |h: usize| 0.1 + 0.05 * h as f64;
-        let onward = |p: &[f64], h: usize| -> [f64; 3] {
-            let (c, s) = (rate(h).cos(), rate(h).sin());
-            [c * p[0] - s * p[1] - p[0], s * p[0] + c * p[1] - p[1], 0.02]
-        };
-        let start: Vec<f32> = vec![0.5, 0.0, 0.1, -0.3, 0.4, -0.2];
-        let walk = |hops: usize| -> Vec<f64> {
-            let mut p: Vec<f64> = start.iter().map(|&v| v as f64).collect();
-            for h in 1..hops {
-                for q in p.chunks_mut(3) {
-                    let f = onward(q, h);
-                    (0..3).for_each(|a| q[a] += f[a]);
-                }
-            }
-            p
-        };
-        for hops in 1..=4 {
-            let mut calls = Vec::new();
-            let x = tensor(start.clone(), 3, &device);
-            let (got, back) = chain_flow(x, hops, |x, h| {
-                calls.push(h);
-                let p = nerf_core::readback::read_back(x, "points").unwrap();
-                let f: Vec<f32> = p
-                    .chunks(3)
-                    .flat_map(|q| onward(&q.iter().map(|&v| v as f64).collect::<Vec<_>>(), h))
-                    .map(|v| v as f32)
-                    .collect();
-                let back: Vec<f32> = vec![h as f32; p.len()];
-                (tensor(f, 3, &device), tensor(back, 3, &device))
-            });
-            assert_eq!(calls, (1..hops).collect::<Vec<_>>());
-            let got = nerf_core::readback::read_back(got, "chained").unwrap();
-            for (g, w) in got.iter().zip(walk(hops)) {
-                assert!((*g as f64 - w).abs() < 1e-6, "{hops} hops: {g} vs {w}");
-            }
-            match back {
-                None => assert_eq!(hops, 1),
-                Some(b) => {
-                    let b = nerf_core::readback::read_back(b, "back").unwrap();
-                    assert!(
-                        b.iter().all(|&v| v == 1.0),
-                        "the back flow of the first hop: {b:?}"
-                    );
-                }
-            }
-        }
     }
 
     /// A video's step warps towards both neighbours (one at either end); a jumping camera's
@@ -2255,41 +1576,21 @@ mod tests {
         (cfg, video)
     }
 
-    /// The static warm-up draws masked pixels at `warm_up_masked`, falling linearly to none at
-    /// its end; at a share s a masked pixel is kept with probability s on each try, so masked
+    /// The static batch draws masked pixels at `masked_static`, all run long or in the warm-up
+    /// only; at a share s a masked pixel is kept with probability s on each try, so masked
     /// pixels make f·s / (1 − f + f·s) of the draw for a mask fraction f (f at s = 1: uniform).
     #[test]
-    fn the_warm_up_draws_masked_pixels_at_a_falling_share() {
-        let (dir, mut cfg, video) = temp_video("nsff-warm-masked");
-        assert_eq!(cfg.warm_up_masked, 0.0, "opt-in");
-        cfg.base.steps = 100;
-        cfg.base.time_budget = None;
-        cfg.static_warm_up = 0.5;
-        cfg.warm_up_masked = 0.8;
+    fn the_static_batch_draws_masked_pixels_at_its_share() {
+        let (dir, cfg, video) = temp_video("nsff-warm-masked");
+        assert_eq!(cfg.masked_static, 0.0, "opt-in");
         let mut t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
-        for (step, want) in [(0, 0.8), (25, 0.4), (50, 0.0), (80, 0.0)] {
-            t.step = step;
-            let got = t.warm_up_masked_share();
-            assert!((got - want).abs() < 1e-6, "step {step}: share {got}, want {want}");
-        }
-        // `masked_static` all run long, or in the warm-up only.
+        assert_eq!(t.static_batch_masked(true), 0.0);
         t.cfg.masked_static = 0.5;
-        assert_eq!(t.static_batch_masked(false), (0.5, 0.5));
+        assert_eq!(t.static_batch_masked(false), 0.5);
+        assert_eq!(t.static_batch_masked(true), 0.5);
         t.cfg.masked_static_warm_up_only = true;
-        assert_eq!(t.static_batch_masked(false), (0.0, 0.0));
-        t.step = 0;
-        assert_eq!(t.static_batch_masked(true), (0.5, 0.8));
-        // With `masked_static_falls` (and `warm_up_masked` off) its share falls as
-        // `warm_up_masked`'s does: linearly from 0.5 to 0 over the fixture's 50-step warm-up.
-        t.cfg.masked_static_falls = true;
-        t.cfg.warm_up_masked = 0.0;
-        for (step, want) in [(0, 0.5), (25, 0.25), (40, 0.1), (50, 0.0)] {
-            t.step = step;
-            let (m, got) = t.static_batch_masked(true);
-            assert_eq!(m, 0.5, "the robust weights stay on while masked rays are drawn");
-            assert!((got - want).abs() < 1e-6, "step {step}: share {got}, want {want}");
-        }
-        (t.cfg.masked_static_falls, t.cfg.warm_up_masked, t.step) = (false, 0.8, 0);
+        assert_eq!(t.static_batch_masked(false), 0.0);
+        assert_eq!(t.static_batch_masked(true), 0.5);
         let f = t.video.mask_fraction() as f64;
         assert!(
             f > 0.02 && f < 0.98,
@@ -2323,107 +1624,6 @@ mod tests {
                 "share {s}: masked {got:.4}, want {want:.4}"
             );
         }
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-
-    /// With `warm_up_random_background` the warm-up's static batch composites over a random
-    /// colour per ray: background pixels (alpha 0) take their ray's colour as target, opaque
-    /// pixels keep the image's; after the warm-up, the dataset's colour and the targets as read.
-    #[test]
-    fn the_warm_up_composites_over_random_backgrounds() {
-        let (dir, mut cfg, video) = temp_video("nsff-warm-rb");
-        assert!(!cfg.warm_up_random_background, "opt-in");
-        cfg.warm_up_random_background = true;
-        let mut t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
-        let mut rng = StdRng::seed_from_u64(4);
-        let pixels = t.still_pixels(2000, 1.0, &mut rng);
-        let (_, target, alpha) = t.pixel_rays(&pixels);
-        assert_eq!(3 * alpha.len(), target.len(), "the synthetic video has alpha");
-        let mut after = target.clone();
-        let bg = t.static_background(false, &mut after, &alpha, None, &mut rng);
-        assert!(matches!(bg, Background::Color(c) if Some(c) == t.video.dataset.background));
-        assert_eq!(after, target);
-        let mut warm = target.clone();
-        let Background::PerRay(bg) = t.static_background(true, &mut warm, &alpha, None, &mut rng) else {
-            panic!("no per-ray background in the warm-up")
-        };
-        let bg = nerf_core::readback::read_back(bg.inner(), "test").unwrap();
-        let (mut empty, mut opaque) = (0, 0);
-        for (r, &a) in alpha.iter().enumerate() {
-            let want: &[f32] = if a == 0.0 {
-                empty += 1;
-                &bg[3 * r..3 * r + 3]
-            } else if a == 1.0 {
-                opaque += 1;
-                &target[3 * r..3 * r + 3]
-            } else {
-                continue;
-            };
-            for c in 0..3 {
-                assert!((warm[3 * r + c] - want[c]).abs() < 1e-6, "ray {r} channel {c}");
-            }
-        }
-        assert!(
-            empty > 0 && opaque > 0,
-            "{empty} background and {opaque} opaque rays"
-        );
-        // `static_random_background` keeps the random colours after the warm-up too.
-        t.cfg.static_random_background = true;
-        let mut later = target.clone();
-        let bg = t.static_background(false, &mut later, &alpha, None, &mut rng);
-        assert!(
-            matches!(bg, Background::PerRay(_)),
-            "no per-ray background after the warm-up"
-        );
-        assert_ne!(later, target, "no background pixel took its ray's colour");
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-
-    /// With `masked_random_background` only the masked rays composite over a random colour:
-    /// a masked ray's target is a·fg + (1 − a)·c for its own colour c, an unmasked ray keeps
-    /// the image's target and the dataset's background; without masked rays nothing changes.
-    #[test]
-    fn only_the_masked_rays_composite_over_random_backgrounds() {
-        let (dir, cfg, video) = temp_video("nsff-masked-rb");
-        let mut t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
-        assert!(!t.cfg.masked_random_background, "opt-in");
-        t.cfg.masked_random_background = true;
-        let mut rng = StdRng::seed_from_u64(9);
-        let pixels = t.still_pixels(2000, 1.0, &mut rng);
-        let (_, target, alpha) = t.pixel_rays(&pixels);
-        let base = t
-            .video
-            .dataset
-            .background
-            .expect("the synthetic video has a background");
-        // Every other ray counts as masked, so both kinds span all alphas.
-        let masked: Vec<bool> = (0..alpha.len()).map(|r| r % 2 == 0).collect();
-        let mut got = target.clone();
-        let Background::PerRay(bg) = t.static_background(false, &mut got, &alpha, Some(&masked), &mut rng)
-        else {
-            panic!("no per-ray background with masked rays")
-        };
-        let bg = nerf_core::readback::read_back(bg.inner(), "test").unwrap();
-        let mut recoloured = 0;
-        for (r, &a) in alpha.iter().enumerate() {
-            let (a, c) = (a as f64, &bg[3 * r..3 * r + 3]);
-            for k in 0..3 {
-                let (old, new) = (target[3 * r + k] as f64, got[3 * r + k] as f64);
-                if masked[r] {
-                    // The image is fg over the base: new − old = (1 − a)·(c − base).
-                    let want = old + (1.0 - a) * (c[k] as f64 - base[k] as f64);
-                    assert!((new - want).abs() < 1e-5, "masked ray {r} channel {k}");
-                } else {
-                    assert_eq!((new, c[k]), (old, base[k]), "unmasked ray {r} channel {k}");
-                }
-            }
-            recoloured += usize::from(masked[r] && a < 1.0 && c != base.as_slice());
-        }
-        assert!(recoloured > 0, "no masked ray took a random colour");
-        let mut none = target.clone();
-        let plain = t.static_background(false, &mut none, &alpha, None, &mut rng);
-        assert!(matches!(plain, Background::Color(c) if c == base));
-        assert_eq!(none, target);
         let _ = std::fs::remove_dir_all(&dir);
     }
 
@@ -2507,34 +1707,6 @@ mod tests {
             "the schedules count from the exit"
         );
 
-        // With a restart the fields are a fresh model's when the rule fires.
-        t.step = 10;
-        t.cfg.static_warm_up = 0.9;
-        t.cfg.warm_up_exit_restart = true;
-        t.occupancy_floor = 1.0;
-        t.train_step().unwrap().expect("a finite warm-up step");
-        let fresh = NsffModel::new(
-            &t.cfg,
-            t.model.bounds.clone(),
-            t.video.times.clone(),
-            true,
-            &t.device,
-        );
-        let still = |m: &NsffModel| tables(m.fields.static_field.host_params());
-        assert_ne!(
-            still(&t.model),
-            still(&fresh),
-            "the step did not train the static field"
-        );
-        occupy(&mut t, 0.05);
-        occupy(&mut t, 0.5);
-        assert!(!t.in_static_warm_up());
-        assert_eq!(
-            still(&t.model),
-            still(&fresh),
-            "the static field was not restarted"
-        );
-        assert!(t.note.take().unwrap().contains("restarted"));
         let _ = std::fs::remove_dir_all(&dir);
     }
 
@@ -2614,50 +1786,6 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
-    /// The warm-up's static batch keeps `warm_up_batch_scale` of the static pipeline's samples
-    /// when set (twice a video's half batch at 1), and the space-time phase's keeps
-    /// `static_batch_scale` again.
-    #[test]
-    fn the_warm_up_batch_takes_its_own_scale() {
-        let rays_after = |scale: Option<f32>| {
-            let (dir, mut cfg, video) = dynamic_video(&format!("nsff-warm-batch-{scale:?}"));
-            assert_eq!(cfg.warm_up_batch_scale, None, "opt-in");
-            cfg.base.steps = 4;
-            cfg.base.time_budget = None;
-            cfg.static_warm_up = 0.5;
-            cfg.warm_up_batch_scale = scale;
-            // Enough samples that neither batch sits at the ray-count clamps on this small video.
-            cfg.base.fast.target_samples = 1 << 15;
-            assert!(cfg.validate().is_ok());
-            let mut t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
-            let mut rays = Vec::new();
-            for _ in 0..3 {
-                let warm = t.in_static_warm_up();
-                t.train_step().unwrap().expect("a finite step");
-                rays.push((warm, t.n_static_rays as f64));
-            }
-            let _ = std::fs::remove_dir_all(&dir);
-            rays
-        };
-        let (half, full) = (rays_after(None), rays_after(Some(1.0)));
-        assert_eq!(half.iter().map(|r| r.0).collect::<Vec<_>>(), [true, true, false]);
-        // The first step draws the same rays and samples in both runs: twice the rays to keep.
-        let first = full[0].1 / half[0].1;
-        assert!(
-            (first - 2.0).abs() < 0.05,
-            "first warm-up step: {first}× the rays"
-        );
-        // After the warm-up both keep half the static pipeline's samples: within the spread of
-        // samples per ray between two differently trained fields, not twice.
-        let after = full[2].1 / half[2].1;
-        assert!((0.6..1.5).contains(&after), "space-time step: {after}× the rays");
-        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
-        for bad in [0.0, -1.0, f32::NAN] {
-            cfg.warm_up_batch_scale = Some(bad);
-            assert!(cfg.validate().unwrap_err().contains("warm_up_batch_scale"));
-        }
-    }
-
     /// During the static warm-up a step leaves the dynamic field untouched and trains the static
     /// one; after it the space-time terms reach the dynamic field.
     #[test]
@@ -2705,91 +1833,5 @@ mod tests {
         let old = lr0 * (lr1 / lr0).powf(0.75);
         assert!((t.lr() - old).abs() < 1e-9 * lr0, "lr {} vs {old}", t.lr());
         let _ = std::fs::remove_dir_all(&dir);
-    }
-
-    /// `mask_refine_quantile`: the masks stay through the warm-up, lose only masked pixels when
-    /// the space-time phase starts, and a resumed run takes the same pixels out of the
-    /// recomputed masks.
-    #[test]
-    fn masks_refined_at_the_warm_up_s_end_survive_a_resume() {
-        let (dir, mut cfg, video) = dynamic_video("nsff-mask-refine");
-        assert_eq!(cfg.mask_refine_quantile, 0.0, "opt-in");
-        cfg.base.steps = 4;
-        cfg.base.time_budget = None;
-        cfg.static_warm_up = 0.5;
-        cfg.mask_refine_quantile = 1.0;
-        assert!(cfg.validate().is_ok());
-        let run_dir = dir.join("run");
-        let flow_masks = video.motion_masks.clone();
-        let masked = |m: &[Vec<bool>]| m.iter().flatten().filter(|&&x| x).count();
-        assert!(masked(&flow_masks) > 0, "the moving cube is masked");
-        let mut t = NsffTrainer::new(cfg, video, &run_dir).unwrap();
-        for _ in 0..2 {
-            t.train_step().unwrap().expect("a finite warm-up step");
-        }
-        assert!(t.mask_refined.is_none() && t.video.motion_masks == flow_masks);
-        t.train_step().unwrap().expect("a finite space-time step");
-        let removed = t.mask_refined.clone().expect("refined when the warm-up ended");
-        let mut left = 0;
-        for ((before, after), gone) in flow_masks.iter().zip(&t.video.motion_masks).zip(&removed) {
-            for p in 0..before.len() {
-                assert!(!gone[p] || before[p], "pixel {p} left a mask it was not in");
-                assert_eq!(after[p], before[p] && !gone[p]);
-                left += usize::from(after[p]);
-            }
-        }
-        assert!(left < masked(&flow_masks), "nothing left the masks");
-        for (moving, mask) in t.video.moving_pixels.iter().zip(&t.video.motion_masks) {
-            assert!(
-                moving.iter().all(|&p| mask[p as usize]),
-                "hard mining keeps a refined pixel"
-            );
-        }
-        t.save().unwrap();
-        let resumed = NsffTrainer::resume(&run_dir, |_| Ok(()), true).unwrap();
-        assert_eq!(resumed.video.motion_masks, t.video.motion_masks);
-        assert_eq!(resumed.mask_refined, Some(removed));
-        // Refined once: the next step leaves the masks alone.
-        let refined = t.video.motion_masks.clone();
-        t.train_step().unwrap().expect("a finite space-time step");
-        assert_eq!(t.video.motion_masks, refined);
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-
-    /// `static_lr_final` gives the static field its own decay: the same start as the dynamic
-    /// field, its own end. Decayed to next to nothing, a step leaves the static field's tables
-    /// as they were while the dynamic field's still move.
-    #[test]
-    fn the_static_field_decays_to_its_own_rate() {
-        let (dir, mut t) = space_time_trainer("nsff-static-lr", |c| {
-            assert_eq!(c.static_lr_final, None, "opt-in");
-            c.base.steps = 2;
-            c.base.time_budget = None;
-            c.static_lr_final = Some(1e-300);
-            assert!(c.validate().is_ok());
-        });
-        let (lr0, lr1) = (t.cfg.base.lr, t.cfg.base.lr_final);
-        assert_eq!((t.lr(), t.static_lr()), (lr0, lr0), "both start at base.lr");
-        t.train_step().unwrap().expect("a finite step");
-        // Half-way: the dynamic field at sqrt(lr0 lr1), the static one at sqrt(lr0 1e-300).
-        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b;
-        assert!(close(t.lr(), (lr0 * lr1).sqrt()), "lr {}", t.lr());
-        assert!(
-            close(t.static_lr(), (lr0 * 1e-300).sqrt()),
-            "static lr {}",
-            t.static_lr()
-        );
-        let dynamic = |t: &NsffTrainer| tables(t.model.fields.dynamic.as_ref().unwrap().host_params());
-        let still = |t: &NsffTrainer| tables(t.model.fields.static_field.host_params());
-        let (dyn0, st0) = (dynamic(&t), still(&t));
-        t.train_step().unwrap().expect("a finite step");
-        assert_eq!(still(&t), st0, "the static field moved at a rate of 1e-151");
-        assert_ne!(dynamic(&t), dyn0, "the dynamic field did not move");
-        let _ = std::fs::remove_dir_all(&dir);
-        let mut cfg = NsffConfig::new(Preset::Fast, "unused".into(), LoadOptions::default());
-        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
-            cfg.static_lr_final = Some(bad);
-            assert!(cfg.validate().unwrap_err().contains("static_lr_final"));
-        }
     }
 }

@@ -43,22 +43,6 @@ impl Video {
         });
         inside as f32 / all.max(1) as f32
     }
-
-    /// Takes `removed` (per frame, `[H*W]`) out of the motion masks and out of the pixels hard
-    /// mining draws from ([`crate::mask_refine`]).
-    pub fn unmask(&mut self, removed: &[Vec<bool>]) {
-        for ((mask, moving), gone) in self
-            .motion_masks
-            .iter_mut()
-            .zip(&mut self.moving_pixels)
-            .zip(removed)
-        {
-            for (m, &g) in mask.iter_mut().zip(gone) {
-                *m &= !g;
-            }
-            moving.retain(|&p| !gone.get(p as usize).copied().unwrap_or(false));
-        }
-    }
 }
 
 /// Orders the training frames by time and checks them: every frame has a time, times strictly
