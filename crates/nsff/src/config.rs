@@ -277,10 +277,10 @@ pub struct NsffConfig {
     pub masked_static: f32,
     /// `masked_static` during the static warm-up only: the static field learns the still matter
     /// the masks hold (a plate whose flow fails), and the space-time phase draws outside the
-    /// masks again. False (the default, and what checkpoints from before it read): all run long. Opt-in: with `masked_static` 1,
-    /// on the seven tuning videos at 600 s, it gained 0.52 and 0.43 dB off the path in two
-    /// screens and lost 0.46 and 0.29 between frames, the mean +0.03 and +0.07 (BENCHMARKS.md §6,
-    /// fifty-first and fifty-second sessions).
+    /// masks again. False (the default, and what checkpoints from before it read): all run
+    /// long. Opt-in: with `masked_static` 1, on the seven tuning videos at 600 s, it gained 0.52
+    /// and 0.43 dB off the path in two screens and lost 0.46 and 0.29 between frames, the mean
+    /// +0.03 and +0.07 (BENCHMARKS.md §6, fifty-first and fifty-second sessions).
     #[serde(default)]
     pub masked_static_warm_up_only: bool,
     /// τ of `masked_static`'s weight, in units of the unmasked rays' mean squared error.
