@@ -456,23 +456,12 @@ impl NsffTrainer {
 
     /// Renders components along `rays` at `samples` on the training device.
     fn render(&self, rays: &Rays, samples: &RaySamples, components: &[Component]) -> RenderOutput {
-        let bg = Background::from_option(self.video.dataset.background);
-        self.render_over(rays, samples, components, &bg)
-    }
-
-    /// [`Self::render`] over `background`.
-    fn render_over(
-        &self,
-        rays: &Rays,
-        samples: &RaySamples,
-        components: &[Component],
-        background: &Background,
-    ) -> RenderOutput {
+        let background = Background::from_option(self.video.dataset.background);
         render(
             rays,
             samples,
             components,
-            background,
+            &background,
             render_options(&self.model),
             &self.device,
         )
@@ -519,9 +508,7 @@ impl NsffTrainer {
         let batch = self.frame_batch(rng);
         let Some(dynamic) = &self.model.fields.dynamic else {
             // No independent motion: the static pipeline's photometric loss only.
-            let bg = Background::from_option(self.video.dataset.background);
-            let Some((loss, m, s_n)) = self.static_photometric(&batch.rays, batch.target, &bg, None, rng)?
-            else {
+            let Some((loss, m, s_n)) = self.static_photometric(&batch.rays, batch.target, None, rng)? else {
                 return Ok(None);
             };
             return Ok(Some((loss, stats(m, batch.rays.len(), s_n), 0)));
@@ -874,10 +861,9 @@ impl NsffTrainer {
                 .flat_map(|(k, ps)| ps.iter().map(move |&p| masks[k][p as usize]))
                 .collect()
         });
-        let background = Background::from_option(self.video.dataset.background);
         let target = tensor(target, 3, &self.device);
         let still = span("nsff_static_batch", || {
-            self.static_photometric(&rays, target, &background, masked.as_deref(), rng)
+            self.static_photometric(&rays, target, masked.as_deref(), rng)
         })?;
         Ok(still.map(|(loss, m, n)| (loss, m, rays.len(), n)))
     }
@@ -936,7 +922,6 @@ impl NsffTrainer {
         &self,
         rays: &Rays,
         target: Tensor<2>,
-        background: &Background,
         masked: Option<&[bool]>,
         rng: &mut StdRng,
     ) -> Result<Option<(Tensor<1>, f64, usize)>> {
@@ -949,7 +934,7 @@ impl NsffTrainer {
         let x = tensor(samples.positions(rays), 3, &self.device);
         let dirs = samples.per_sample3(&rays.viewdirs());
         let st = self.model.fields.static_field.query(FieldQuery::new(x, &dirs));
-        let out = self.render_over(rays, &samples, &[Component::new(st.sigma, st.rgb)], background);
+        let out = self.render(rays, &samples, &[Component::new(st.sigma, st.rgb)]);
         let photo = match masked {
             Some(m) if m.iter().any(|&m| m) => robust_mse(out.rgb, target, m, self.cfg.masked_static_scale)?,
             _ => losses::mse(out.rgb, target),
