@@ -280,7 +280,9 @@ pub struct NsffConfig {
     /// masks again. False (the default, and what checkpoints from before it read): all run
     /// long. Opt-in: with `masked_static` 1, on the seven tuning videos at 600 s, it gained 0.52
     /// and 0.43 dB off the path in two screens and lost 0.46 and 0.29 between frames, the mean
-    /// +0.03 and +0.07 (BENCHMARKS.md §6, fifty-first and fifty-second sessions).
+    /// +0.03 and +0.07 (BENCHMARKS.md §6, fifty-first and fifty-second sessions). Beside the
+    /// depth prior (a rough disparity) it lost 0.12 dB on the mean and 0.13 off the path
+    /// (sixty-third session).
     #[serde(default)]
     pub masked_static_warm_up_only: bool,
     /// τ of `masked_static`'s weight, in units of the unmasked rays' mean squared error.
