@@ -111,13 +111,14 @@ impl<F: FieldModule> StaticModel<F> {
         device: &Device,
         build: FieldBuilder<F>,
     ) -> Self {
-        device.seed(cfg.seed);
         let sampling = Sampling::from_config(cfg);
-        // The proposal (coarse) field is built first, so a seed gives the same initialisation
-        // as before the field trait.
-        let proposal = matches!(sampling, Sampling::Hierarchical { .. }).then(|| build(cfg, &bounds, device));
-        let field = build(cfg, &bounds, device);
-        let fields = StaticFields { field, proposal };
+        let fields = nerf_core::device::seeded(device, cfg.seed, || {
+            // The proposal (coarse) field is built, and so drawn, first.
+            let proposal =
+                matches!(sampling, Sampling::Hierarchical { .. }).then(|| build(cfg, &bounds, device));
+            let field = build(cfg, &bounds, device);
+            StaticFields { field, proposal }
+        });
         let occupancy = (matches!(sampling, Sampling::March { .. }) && cfg.fast.use_occupancy)
             .then(|| OccupancyGrid::new(cfg.fast.occupancy.clone(), bounds.aabb));
         StaticModel {

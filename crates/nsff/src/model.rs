@@ -26,13 +26,14 @@ pub struct NsffFields {
 
 impl NsffFields {
     pub fn new(cfg: &NsffConfig, aabb: [[f32; 3]; 2], with_dynamic: bool, device: &Device) -> Self {
-        device.seed(cfg.base.seed);
-        let static_field = StaticField::new(cfg, aabb, device);
-        let dynamic = with_dynamic.then(|| DynamicField::new(cfg, aabb, device));
-        NsffFields {
-            static_field,
-            dynamic,
-        }
+        nerf_core::device::seeded(device, cfg.base.seed, || {
+            let static_field = StaticField::new(cfg, aabb, device);
+            let dynamic = with_dynamic.then(|| DynamicField::new(cfg, aabb, device));
+            NsffFields {
+                static_field,
+                dynamic,
+            }
+        })
     }
 
     /// The hash grids (fast preset), for their sparse optimiser steps and checkpoints.
