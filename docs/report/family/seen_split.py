@@ -18,53 +18,29 @@ Each pixel of those views is put in one group:
   is *seen in 0-2 frames*, *mostly masked* (inside the motion mask in at least half the frames
   that saw it), or *mostly unmasked*.
 
-Prints each render's PSNR per group and each group's share of its squared error. Pure Python.
+Prints each render's PSNR per group and each group's share of its squared error. Pure Python;
+PNG decoding and the ground truth's compositing are `docs/dnerf/score.py`'s.
 """
 import json
 import math
+import os
 import struct
 import sys
-import zlib
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'dnerf'))
+from score import ground_truth, read_png  # noqa: E402
 
 
-def read_png(path):
-    data = open(path, 'rb').read()
-    assert data[:8] == b'\x89PNG\r\n\x1a\n', path
-    i, idat = 8, b''
-    while i < len(data):
-        n, kind = struct.unpack('>I4s', data[i:i + 8])
-        chunk = data[i + 8:i + 8 + n]
-        i += 12 + n
-        if kind == b'IHDR':
-            w, h, depth, colour = struct.unpack('>IIBB', chunk[:10])
-        elif kind == b'IDAT':
-            idat += chunk
-    assert depth == 8 and colour in (2, 6), (path, depth, colour)
-    ch = 3 if colour == 2 else 4
-    raw, stride = zlib.decompress(idat), w * ch
-    rows, prev, o = [], bytearray(stride), 0
-    for _ in range(h):
-        f, line = raw[o], bytearray(raw[o + 1:o + 1 + stride])
-        o += 1 + stride
-        for x in range(stride):
-            a = line[x - ch] if x >= ch else 0
-            b = prev[x]
-            c = prev[x - ch] if x >= ch else 0
-            if f == 1:
-                line[x] = (line[x] + a) & 255
-            elif f == 2:
-                line[x] = (line[x] + b) & 255
-            elif f == 3:
-                line[x] = (line[x] + (a + b) // 2) & 255
-            elif f == 4:
-                pa, pb, pc = abs(b - c), abs(a - c), abs(a + b - 2 * c)
-                line[x] = (line[x] + (a if pa <= pb and pa <= pc else b if pb <= pc else c)) & 255
-        # RGBA over white, as the scorers composite the generator's images.
-        rows.append([tuple(line[x * ch:x * ch + 3]) if ch == 3 else
-                     tuple(int(line[x * ch + k] * line[x * ch + 3] / 255 + 255 * (1 - line[x * ch + 3] / 255) + 0.5)
-                           for k in range(3)) for x in range(w)])
-        prev = line
-    return rows
+def rgb_rows(path):
+    """An 8-bit RGB PNG (a render or a mask overlay) as rows of (r, g, b) in 0-255."""
+    w, h, c, px = read_png(path)
+    return [[tuple(px[(y * w + x) * c:(y * w + x) * c + 3]) for x in range(w)] for y in range(h)]
+
+
+def truth_rows(path):
+    """A generator image composited on white, as the scorer does, rows of (r, g, b) in 0-255."""
+    w, h, flat, _ = ground_truth(path, 1)
+    return [[tuple(255.0 * flat[3 * (y * w + x) + k] for k in range(3)) for x in range(w)] for y in range(h)]
 
 
 def read_npy(path):
@@ -84,7 +60,7 @@ def main():
     test = json.load(open(scene + '/transforms_test.json'))['frames']
     frames = []
     for k, f in enumerate(train):
-        overlay = read_png('%s/%s_0.35_%03d.png' % (masks, name, k))
+        overlay = rgb_rows('%s/%s_0.35_%03d.png' % (masks, name, k))
         masked = [[px in ((0, 200, 0), (230, 0, 0)) for px in row] for row in overlay]
         frames.append((f, read_npy('%s/gt/train/%s_depth.npy' % (scene, f['file_path'].split('/')[-1])), masked))
     groups = ['seen in 0-2 frames', 'mostly masked', 'mostly unmasked', 'background at an edge', 'open background']
@@ -93,8 +69,8 @@ def main():
     for v, f in enumerate(test[:4]):
         m, fl, cx, cy = f['transform_matrix'], f['fl_x'], f['cx'], f['cy']
         depth = read_npy('%s/gt/test/%s_depth.npy' % (scene, f['file_path'].split('/')[-1]))
-        truth = read_png('%s/%s.png' % (scene, f['file_path']))
-        images = {r: read_png('%s/%04d.png' % (d, v)) for r, d in runs.items()}
+        truth = truth_rows('%s/%s.png' % (scene, f['file_path']))
+        images = {r: rgb_rows('%s/%04d.png' % (d, v)) for r, d in runs.items()}
         h, w = len(depth), len(depth[0])
         for y in range(h):
             for x in range(w):
