@@ -285,6 +285,21 @@ pub struct NsffConfig {
     /// (sixty-third session).
     #[serde(default)]
     pub masked_static_warm_up_only: bool,
+    /// The static batch (warm-up included) composites each RGBA pixel's target over a random
+    /// colour, as `nerf train` does, instead of the dataset's background: a pixel that sees the
+    /// background says its ray is empty at that time, so empty of static matter at every time,
+    /// and over white the static field could leave white fog there that shows in front of
+    /// surfaces from other viewpoints. False: what checkpoints from before it read.
+    #[serde(default)]
+    pub static_random_background: bool,
+    /// `masked_static` after the static warm-up only: the warm-up's static field knows nothing
+    /// of the movers, so the blend opens on them when the space-time phase starts as it does
+    /// without `masked_static` (with the masked pixels from the start, the static field draws
+    /// ghosts of the movers and the blend can shut for good: fam3, sixty-fifth session), and
+    /// the masked pixels then clear the fog along the movers' paths. False: what checkpoints
+    /// from before it read.
+    #[serde(default)]
+    pub masked_static_after_warm_up: bool,
     /// τ of `masked_static`'s weight, in units of the unmasked rays' mean squared error.
     #[serde(default = "default_masked_static_scale")]
     pub masked_static_scale: f32,
@@ -596,6 +611,8 @@ impl NsffConfig {
             masked_static: 0.0,
             masked_static_warm_up_only: false,
             masked_static_scale: default_masked_static_scale(),
+            static_random_background: false,
+            masked_static_after_warm_up: false,
             lr_decay_after_warm_up: true,
             sparsity_points: VIDEO_SPARSITY_POINTS,
             error_rays: 0.0,
@@ -736,6 +753,12 @@ impl NsffConfig {
                 "masked_static must be in [0, 1], got {}",
                 self.masked_static
             ));
+        }
+        if self.masked_static_warm_up_only && self.masked_static_after_warm_up {
+            return Err(
+                "masked_static_warm_up_only and masked_static_after_warm_up together would leave no phase for masked_static"
+                    .into(),
+            );
         }
         if !(self.masked_static_scale.is_finite() && self.masked_static_scale > 0.0) {
             return Err(format!(

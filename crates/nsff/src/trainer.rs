@@ -457,11 +457,22 @@ impl NsffTrainer {
     /// Renders components along `rays` at `samples` on the training device.
     fn render(&self, rays: &Rays, samples: &RaySamples, components: &[Component]) -> RenderOutput {
         let background = Background::from_option(self.video.dataset.background);
+        self.render_over(rays, samples, components, &background)
+    }
+
+    /// [`Self::render`] over `background` instead of the dataset's.
+    fn render_over(
+        &self,
+        rays: &Rays,
+        samples: &RaySamples,
+        components: &[Component],
+        background: &Background,
+    ) -> RenderOutput {
         render(
             rays,
             samples,
             components,
-            &background,
+            background,
             render_options(&self.model),
             &self.device,
         )
@@ -508,7 +519,10 @@ impl NsffTrainer {
         let batch = self.frame_batch(rng);
         let Some(dynamic) = &self.model.fields.dynamic else {
             // No independent motion: the static pipeline's photometric loss only.
-            let Some((loss, m, s_n)) = self.static_photometric(&batch.rays, batch.target, None, rng)? else {
+            let background = Background::from_option(self.video.dataset.background);
+            let Some((loss, m, s_n)) =
+                self.static_photometric(&batch.rays, batch.target, &background, None, rng)?
+            else {
                 return Ok(None);
             };
             return Ok(Some((loss, stats(m, batch.rays.len(), s_n), 0)));
@@ -861,17 +875,42 @@ impl NsffTrainer {
                 .flat_map(|(k, ps)| ps.iter().map(move |&p| masks[k][p as usize]))
                 .collect()
         });
-        let target = tensor(target, 3, &self.device);
+        let (target, background) = self.static_targets(&pixels, target, rng);
         let still = span("nsff_static_batch", || {
-            self.static_photometric(&rays, target, masked.as_deref(), rng)
+            self.static_photometric(&rays, target, &background, masked.as_deref(), rng)
         })?;
         Ok(still.map(|(loss, m, n)| (loss, m, rays.len(), n)))
     }
 
+    /// The static batch's targets (`[R, 3]` from `rgb`, `[R * 3]` in `pixels`' order) and the
+    /// background to render them over: with `static_random_background` on RGBA frames, each
+    /// ray's target is recomposited over a random colour (the static pipeline's
+    /// [`nerf::trainer::random_background`]), so the static field cannot hide density of the
+    /// background's colour where a frame sees the background through it.
+    fn static_targets(
+        &self,
+        pixels: &[Vec<u32>],
+        mut rgb: Vec<f32>,
+        rng: &mut StdRng,
+    ) -> (Tensor<2>, Background) {
+        let (v, dev) = (&self.video, &self.device);
+        let base = v.dataset.background;
+        let (Some(base), true) = (base, self.cfg.static_random_background) else {
+            return (tensor(rgb, 3, dev), Background::from_option(base));
+        };
+        let alpha = (pixels.iter().enumerate()).flat_map(|(k, ps)| {
+            let alpha = v.dataset.views[v.frames[k]].alpha.as_deref();
+            ps.iter().map(move |&p| alpha.map_or(1.0, |a| a[p as usize]))
+        });
+        let bg = nerf::trainer::random_background(&mut rgb, alpha, base, rng);
+        (tensor(rgb, 3, dev), Background::PerRay(tensor(bg, 3, dev)))
+    }
+
     /// The static batch's `masked_static` now: 0 after the warm-up with
-    /// `masked_static_warm_up_only`.
+    /// `masked_static_warm_up_only`, 0 during it with `masked_static_after_warm_up`.
     fn static_batch_masked(&self, warm_up: bool) -> f32 {
-        if !warm_up && self.cfg.masked_static_warm_up_only {
+        let c = &self.cfg;
+        if (!warm_up && c.masked_static_warm_up_only) || (warm_up && c.masked_static_after_warm_up) {
             0.0
         } else {
             self.cfg.masked_static
@@ -922,6 +961,7 @@ impl NsffTrainer {
         &self,
         rays: &Rays,
         target: Tensor<2>,
+        background: &Background,
         masked: Option<&[bool]>,
         rng: &mut StdRng,
     ) -> Result<Option<(Tensor<1>, f64, usize)>> {
@@ -934,7 +974,7 @@ impl NsffTrainer {
         let x = tensor(samples.positions(rays), 3, &self.device);
         let dirs = samples.per_sample3(&rays.viewdirs());
         let st = self.model.fields.static_field.query(FieldQuery::new(x, &dirs));
-        let out = self.render(rays, &samples, &[Component::new(st.sigma, st.rgb)]);
+        let out = self.render_over(rays, &samples, &[Component::new(st.sigma, st.rgb)], background);
         let photo = match masked {
             Some(m) if m.iter().any(|&m| m) => robust_mse(out.rgb, target, m, self.cfg.masked_static_scale)?,
             _ => losses::mse(out.rgb, target),
@@ -1157,6 +1197,7 @@ impl nerf::train_loop::Trainable for NsffTrainer {
 mod tests {
     use super::*;
     use nerf::config::Preset;
+    use nerf_core::readback::host;
     use nerf_data::LoadOptions;
 
     fn tables(grids: Vec<std::sync::Arc<nerf_core::encoding::HashGrid>>) -> Vec<Vec<f32>> {
@@ -1561,8 +1602,8 @@ mod tests {
         (cfg, video)
     }
 
-    /// The static batch draws masked pixels at `masked_static`, all run long or in the warm-up
-    /// only; at a share s a masked pixel is kept with probability s on each try, so masked
+    /// The static batch draws masked pixels at `masked_static`, all run long, in the warm-up
+    /// only or after it only; at a share s a masked pixel is kept with probability s on each try, so masked
     /// pixels make f·s / (1 − f + f·s) of the draw for a mask fraction f (f at s = 1: uniform).
     #[test]
     fn the_static_batch_draws_masked_pixels_at_its_share() {
@@ -1576,6 +1617,16 @@ mod tests {
         t.cfg.masked_static_warm_up_only = true;
         assert_eq!(t.static_batch_masked(false), 0.0);
         assert_eq!(t.static_batch_masked(true), 0.5);
+        t.cfg.masked_static_warm_up_only = false;
+        t.cfg.masked_static_after_warm_up = true;
+        assert_eq!(t.static_batch_masked(false), 0.5);
+        assert_eq!(t.static_batch_masked(true), 0.0);
+        t.cfg.masked_static_warm_up_only = true;
+        assert!(t.cfg.validate().unwrap_err().contains("no phase"));
+        (
+            t.cfg.masked_static_warm_up_only,
+            t.cfg.masked_static_after_warm_up,
+        ) = (true, false);
         let f = t.video.mask_fraction() as f64;
         assert!(
             f > 0.02 && f < 0.98,
@@ -1609,6 +1660,79 @@ mod tests {
                 "share {s}: masked {got:.4}, want {want:.4}"
             );
         }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// With `static_random_background` the static batch's targets are its pixels recomposited
+    /// over the colours it renders over: a pixel of alpha a becomes a·fg + (1 − a)·c, so a
+    /// background pixel's target is its ray's colour c (checked in f64 against the dataset's
+    /// white composite); without it the targets are the frames' colours over the dataset's
+    /// background.
+    #[test]
+    fn the_static_batch_recomposites_over_random_colours() {
+        let (dir, cfg, video) = temp_video("nsff-static-bg");
+        assert!(!cfg.static_random_background, "opt-in");
+        let mut t = NsffTrainer::new(cfg, video, &dir.join("run")).unwrap();
+        let base = t
+            .video
+            .dataset
+            .background
+            .expect("the synthetic video has a background");
+        // Every pixel of the first two frames: both background and surface pixels.
+        let n = t.video.dataset.views[t.video.frames[0]]
+            .alpha
+            .as_ref()
+            .unwrap()
+            .len() as u32;
+        let mut pixels = vec![Vec::new(); t.video.frames.len()];
+        pixels[0] = (0..n).collect();
+        pixels[1] = (0..n).step_by(3).collect();
+        let alpha: Vec<f64> = (0..2)
+            .flat_map(|k| {
+                let a = t.video.dataset.views[t.video.frames[k]].alpha.clone().unwrap();
+                pixels[k]
+                    .iter()
+                    .map(move |&p| a[p as usize] as f64)
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        assert!(
+            alpha.contains(&0.0) && alpha.contains(&1.0),
+            "no background or no surface pixels"
+        );
+        let (_, rgb) = t.pixel_rays(&pixels);
+        let mut rng = StdRng::seed_from_u64(4);
+
+        let (target, background) = t.static_targets(&pixels, rgb.clone(), &mut rng);
+        assert!(matches!(background, Background::Color(c) if c == base));
+        assert_eq!(host(target), rgb);
+
+        t.cfg.static_random_background = true;
+        let (target, background) = t.static_targets(&pixels, rgb.clone(), &mut rng);
+        let Background::PerRay(colours) = background else {
+            panic!("one background colour per ray expected");
+        };
+        let (target, colours) = (host(target), host(colours));
+        assert_eq!((target.len(), colours.len()), (rgb.len(), rgb.len()));
+        for (i, &a) in alpha.iter().enumerate() {
+            for c in 0..3 {
+                let j = 3 * i + c;
+                let want = rgb[j] as f64 + (1.0 - a) * (colours[j] as f64 - base[c] as f64);
+                assert!((target[j] as f64 - want).abs() < 1e-5, "ray {i} channel {c}");
+                if a == 0.0 {
+                    assert!(
+                        (target[j] - colours[j]).abs() < 1e-5,
+                        "a background pixel's target is its colour"
+                    );
+                }
+            }
+        }
+        // The colours are drawn, not the base.
+        assert!(
+            colours
+                .chunks(3)
+                .any(|c| c.iter().zip(&base).any(|(a, b)| (a - b).abs() > 0.1))
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 
