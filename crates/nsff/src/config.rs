@@ -267,12 +267,12 @@ pub struct NsffConfig {
     /// static object the masks hold (a thin plate whose flow fails) is seen the same from
     /// every frame, so the static field comes to fit it and its weight rises; a mover differs
     /// from frame to frame, stays far off and weighs little (RobustNeRF's reading of
-    /// distractors). At 1 every masked pixel is as likely as an unmasked one. 0 (and what
-    /// checkpoints from before it read): the static batch draws outside the masks only. A
-    /// video in the fast preset takes 1 after the warm-up (`masked_static_after_warm_up`)
-    /// over random colours (`static_random_background`); all run long and over white it lost
-    /// off the path on fam21, where the masked rays against the white sky taught the static
-    /// field white fog (BENCHMARKS.md §6, thirty-eighth and sixty-fifth sessions).
+    /// distractors). At 1 every masked pixel is as likely as an unmasked one. 0 (the default,
+    /// and what checkpoints from before it read): the static batch draws outside the masks
+    /// only. Opt-in: over the seven tuning videos at 600 s it gains 0.48 dB off the path and
+    /// 0.10 on the mean, but on the report set it loses off the path on fam21, where the masked
+    /// rays against the white sky teach the static field white fog (BENCHMARKS.md §6,
+    /// thirty-eighth session).
     #[serde(default)]
     pub masked_static: f32,
     /// `masked_static` during the static warm-up only: the static field learns the still matter
@@ -289,16 +289,17 @@ pub struct NsffConfig {
     /// colour, as `nerf train` does, instead of the dataset's background: a pixel that sees the
     /// background says its ray is empty at that time, so empty of static matter at every time,
     /// and over white the static field could leave white fog there that shows in front of
-    /// surfaces from other viewpoints. A video in the fast preset takes it with
-    /// `masked_static`; false: what checkpoints from before it read.
+    /// surfaces from other viewpoints. False: what checkpoints from before it read.
     #[serde(default)]
     pub static_random_background: bool,
     /// `masked_static` after the static warm-up only: the warm-up's static field knows nothing
     /// of the movers, so the blend opens on them when the space-time phase starts as it does
     /// without `masked_static` (with the masked pixels from the start, the static field draws
     /// ghosts of the movers and the blend can shut for good: fam3, sixty-fifth session), and
-    /// the masked pixels then clear the fog along the movers' paths. A video in the fast
-    /// preset takes it; false: what checkpoints from before it read.
+    /// the masked pixels then clear the fog along the movers' paths. False: the default, and
+    /// what checkpoints from before it read. Opt-in: with `masked_static` 1 and
+    /// `static_random_background` it gained 0.50 dB off the path on the seven tuning videos but
+    /// lost 0.31 dB on the mean on four fresh ones (BENCHMARKS.md §6, sixty-sixth session).
     #[serde(default)]
     pub masked_static_after_warm_up: bool,
     /// τ of `masked_static`'s weight, in units of the unmasked rays' mean squared error.
@@ -501,14 +502,6 @@ const VIDEO_LR_FINAL_RATIO: f64 = 0.3;
 // +0.37 against +0.68 (BENCHMARKS.md §6, sixty-first session).
 const VIDEO_DEPTH: f64 = 0.01;
 
-// A video's static batch takes the masked pixels after the warm-up (`masked_static` 1,
-// robustly weighted) over random colours: the static field then clears the fog along the
-// movers' paths that only masked rays see. On the seven tuning videos at 600 s, against the
-// default side by side: off the path +0.50 dB (six up, one level), the mean +0.19 (five up, one
-// level, fam17 −0.51), between frames −0.11. From the warm-up on, the blend shut on fam3
-// (BENCHMARKS.md §6, sixty-fifth session).
-const VIDEO_MASKED_STATIC: f32 = 1.0;
-
 fn default_sparsity_points() -> usize {
     2048
 }
@@ -670,9 +663,6 @@ impl NsffConfig {
                 self.use_flow_grid();
                 self.base.lr_final = VIDEO_LR_FINAL_RATIO * self.base.lr;
                 self.weights.depth = VIDEO_DEPTH;
-                self.masked_static = VIDEO_MASKED_STATIC;
-                self.masked_static_after_warm_up = true;
-                self.static_random_background = true;
             }
         }
     }
@@ -722,10 +712,6 @@ impl NsffConfig {
         self.weights.moving_dynamic = LossWeights::default().moving_dynamic;
         // The consistency term was screened on videos only.
         self.weights.field_consistency = LossWeights::default().field_consistency;
-        // A jumping camera has no motion masks, so no static batch to take masked pixels.
-        self.masked_static = 0.0;
-        self.masked_static_after_warm_up = false;
-        self.static_random_background = false;
         // The learning rate's end and the depth prior's weight were screened on videos only.
         self.base.lr_final = self.base.preset.learning_rates().1;
         self.weights.depth = LossWeights::default().depth;

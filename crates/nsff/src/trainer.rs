@@ -1405,15 +1405,6 @@ mod tests {
             cfg.weights.depth, 0.01,
             "a video's depth prior at a quarter of NSFF's"
         );
-        assert_eq!(
-            (
-                cfg.masked_static,
-                cfg.masked_static_after_warm_up,
-                cfg.static_random_background
-            ),
-            (1.0, true, true),
-            "a video's static batch takes the masked pixels after the warm-up, over random colours"
-        );
         assert!(cfg.validate().is_ok());
         vanilla.base.preset = Preset::Vanilla;
         (vanilla.base.lr, vanilla.base.lr_final) = Preset::Vanilla.learning_rates();
@@ -1425,7 +1416,6 @@ mod tests {
             "not screened"
         );
         assert_eq!(vanilla.weights.depth, 0.04, "NSFF's weight");
-        assert_eq!(vanilla.masked_static, 0.0, "not screened");
         assert!(
             vanilla.validate().is_ok(),
             "the vanilla preset refuses a flow grid"
@@ -1436,15 +1426,6 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
         let (dir, cfg, _) = jumping_scene("nsff-flow-grid-jumping");
         assert_eq!(cfg.flow_levels, 0);
-        assert_eq!(
-            (
-                cfg.masked_static,
-                cfg.masked_static_after_warm_up,
-                cfg.static_random_background
-            ),
-            (0.0, false, false),
-            "a jumping camera has no static batch"
-        );
         assert!(!cfg.flow_detach_weights);
         assert_eq!(
             cfg.weights.optical_flow,

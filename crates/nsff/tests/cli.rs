@@ -44,19 +44,11 @@ fn train_eval_and_render_cameras_agree() {
     let dir = temp("cycle");
     let data = video(&dir, Preset::Dynamic, (32, 24), 6);
     let run_dir = dir.join("run");
-    // The static batch as before the sixty-sixth session: with the masked pixels in it after
-    // the warm-up over random colours (a video's default now), 60 steps leave the dynamic field
-    // drawing under 1 grey level on average on this video (0.0003 dB), and `--static-only`
-    // below must differ from the full model to show it is routed.
     let out = run(nsff().arg("train").arg(&data).arg("--out").arg(&run_dir).args([
         "--steps",
         "60",
         "--set",
         "base.checkpoint_every=30",
-        "--set",
-        "masked_static=0",
-        "--set",
-        "static_random_background=false",
     ]));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("dynamic field on"), "{stderr}");
