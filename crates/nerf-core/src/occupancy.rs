@@ -33,6 +33,22 @@ impl Default for OccupancyConfig {
     }
 }
 
+/// Which views must see background through a cell for visual-hull carving to empty it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum HullRule {
+    /// Background in at least this many views: in a still scene one view's background already
+    /// proves a cell empty (more guard against a stray alpha).
+    AtLeast(usize),
+    /// Foreground in no view that sees any of the cell, and background in at least
+    /// `min_background` views: where things move, a view's background proves a cell empty at
+    /// that view's time only, so the cell must look empty at every time the video saw it (a
+    /// mover that passes through it shows in front of something in that frame). With
+    /// `min_background` 0 the cells no view sees are carved too (instant-ngp's untrained
+    /// cells): nothing was observed there, and a field's guess there shows as floaters from new
+    /// viewpoints.
+    NoForeground { min_background: usize },
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct OccupancyGrid {
     pub config: OccupancyConfig,
@@ -200,7 +216,7 @@ impl OccupancyGrid {
     }
 
     /// Visual-hull carving: marks as empty every cell whose centre projects onto background
-    /// pixels in at least `min_views` views. `project(view, p)` returns whether `p` lands on
+    /// pixels in the views `rule` asks for. `project(view, p)` returns whether `p` lands on
     /// background in that view (`Some(true)`), on foreground (`Some(false)`), or outside it
     /// (`None`). The caller dilates its foreground masks by a cell's projected size, so a cell
     /// is only carved when no part of it can be seen in front of background. Returns the
@@ -208,19 +224,32 @@ impl OccupancyGrid {
     pub fn carve(
         &mut self,
         views: usize,
-        min_views: usize,
+        rule: HullRule,
         project: &(dyn Fn(usize, [f32; 3]) -> Option<bool> + Sync),
     ) -> f32 {
         use rayon::prelude::*;
         let centers: Vec<[f32; 3]> = (0..self.num_cells()).map(|i| self.cell_center(i)).collect();
         let carved: Vec<bool> = centers
             .par_iter()
-            .map(|&p| {
-                (0..views)
-                    .filter(|&v| project(v, p) == Some(true))
-                    .take(min_views)
-                    .count()
-                    >= min_views
+            .map(|&p| match rule {
+                HullRule::AtLeast(min_views) => {
+                    (0..views)
+                        .filter(|&v| project(v, p) == Some(true))
+                        .take(min_views)
+                        .count()
+                        >= min_views
+                }
+                HullRule::NoForeground { min_background } => {
+                    let mut background = 0;
+                    for v in 0..views {
+                        match project(v, p) {
+                            Some(true) => background += 1,
+                            Some(false) => return false,
+                            None => {}
+                        }
+                    }
+                    background >= min_background
+                }
             })
             .collect();
         for (c, new) in self.carved.iter_mut().zip(&carved) {
@@ -313,11 +342,18 @@ impl ForegroundTable {
     }
 }
 
-/// Carves the visual hull of an object dataset into `grid`: a cell is empty when, in at least two
-/// of the given views, the whole window its cell covers on screen shows background (alpha below
-/// 0.01, or exactly the background colour where the images have no alpha). Does nothing for
-/// scenes without a background (real captures) or in NDC space. Returns the carved fraction.
-pub fn carve_visual_hull(grid: &mut OccupancyGrid, dataset: &nerf_data::Dataset, views: &[usize]) -> f32 {
+/// Carves the visual hull of an object dataset into `grid`: a cell is empty when, in the views
+/// `rule` asks for among the given ones, the whole window its cell covers on screen shows
+/// background (alpha below 0.01, or exactly the background colour where the images have no
+/// alpha). A window that any foreground pixel reaches, even one cut by the image's edge, counts
+/// as foreground. Does nothing for scenes without a background (real captures) or in NDC space.
+/// Returns the carved fraction.
+pub fn carve_visual_hull(
+    grid: &mut OccupancyGrid,
+    dataset: &nerf_data::Dataset,
+    views: &[usize],
+    rule: HullRule,
+) -> f32 {
     let Some(bg) = dataset.background else { return 0.0 };
     if dataset.ndc.is_some() {
         return 0.0;
@@ -344,16 +380,25 @@ pub fn carve_visual_hull(grid: &mut OccupancyGrid, dataset: &nerf_data::Dataset,
     let project = |k: usize, p: [f32; 3]| -> Option<bool> {
         let cam = &dataset.views[views[k]].camera;
         let (u, v, depth) = cam.project(p.map(f64::from))?;
+        if depth <= half_diag {
+            return None;
+        }
         // Pixel radius of the cell's bounding sphere, plus one pixel of slack.
         let r = (cam.intrinsics.fx.max(cam.intrinsics.fy) * half_diag / depth).ceil() + 1.0;
         let t = &tables[k];
         let (x0, y0, x1, y1) = ((u - r).floor(), (v - r).floor(), (u + r).ceil(), (v + r).ceil());
-        if x0 < 0.0 || y0 < 0.0 || x1 > t.width as f64 || y1 > t.height as f64 || depth <= half_diag {
-            return None;
+        let (w, h) = (t.width as f64, t.height as f64);
+        let clip = |a: f64, hi: f64| a.clamp(0.0, hi) as usize;
+        let (cx0, cy0, cx1, cy1) = (clip(x0, w), clip(y0, h), clip(x1, w), clip(y1, h));
+        let foreground = cx0 < cx1 && cy0 < cy1 && t.count(cx0, cy0, cx1, cy1) > 0;
+        let inside = x0 >= 0.0 && y0 >= 0.0 && x1 <= w && y1 <= h;
+        match (foreground, inside) {
+            (true, _) => Some(false),
+            (false, true) => Some(true),
+            (false, false) => None,
         }
-        Some(t.count(x0 as usize, y0 as usize, x1 as usize, y1 as usize) == 0)
     };
-    grid.carve(views.len(), 2, &project)
+    grid.carve(views.len(), rule, &project)
 }
 
 #[cfg(test)]
@@ -394,6 +439,144 @@ mod tests {
             f > 0.5 * ball_fraction && f < 2.0 * ball_fraction,
             "{f} vs {ball_fraction}"
         );
+    }
+
+    /// Four views, each saying of a cell (by the sign of its x and y): `x < 0` is seen as
+    /// background by views 0 and 1; `x > 0, y < 0` is seen as foreground by view 2 and as
+    /// background by views 0 and 1; `x > 0, y > 0` is outside every view.
+    fn four_views(v: usize, p: [f32; 3]) -> Option<bool> {
+        match (p[0] < 0.0, p[1] < 0.0, v) {
+            (true, _, 0 | 1) => Some(true),
+            (true, _, _) => None,
+            (false, true, 0 | 1) => Some(true),
+            (false, true, 2) => Some(false),
+            _ => None,
+        }
+    }
+
+    #[test]
+    fn hull_rules_carve_what_they_say() {
+        let grid = || {
+            OccupancyGrid::new(
+                OccupancyConfig {
+                    resolution: 4,
+                    ..Default::default()
+                },
+                [[-1.0; 3], [1.0; 3]],
+            )
+        };
+        let carved_at = |g: &OccupancyGrid, p: [f32; 3]| !g.is_occupied(p);
+        let (left, fore, unseen) = ([-0.5, 0.5, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.0]);
+
+        // A still scene: two views of background are enough, whatever a third says.
+        let mut g = grid();
+        let f = g.carve(4, HullRule::AtLeast(2), &four_views);
+        assert_eq!(f, 0.75, "x < 0 and x > 0, y < 0");
+        assert!(carved_at(&g, left) && carved_at(&g, fore) && !carved_at(&g, unseen));
+
+        // Where things move, one view of foreground keeps the cell.
+        let mut g = grid();
+        g.carve(4, HullRule::NoForeground { min_background: 2 }, &four_views);
+        assert!(carved_at(&g, left) && !carved_at(&g, fore) && !carved_at(&g, unseen));
+
+        // With no background asked for, the cells no view sees go too.
+        let mut g = grid();
+        g.carve(4, HullRule::NoForeground { min_background: 0 }, &four_views);
+        assert!(carved_at(&g, left) && !carved_at(&g, fore) && carved_at(&g, unseen));
+        assert!(g.carved()[g.num_cells() - 1], "the carved cells are remembered");
+    }
+
+    /// Three 48×48 RGBA views of a ball of radius 0.4, from cameras at radius 4 on a 60° arc:
+    /// at the origin in views 0 and 1, moved to `moved` in view 2 (a mover at a later time).
+    /// The alpha comes from ray-ball intersection, independent of the carve's projection.
+    fn ball_video(moved: [f64; 3]) -> nerf_data::Dataset {
+        use nerf_data::camera::{Camera, Intrinsics, Pose};
+        let mut ds =
+            nerf_data::Dataset::blender_object("ball".into(), nerf_data::Format::DNerf, [1.0; 3], Vec::new());
+        let (w, h, radius) = (48u32, 48u32, 0.4f64);
+        for (k, deg) in [-30.0f64, 0.0, 30.0].into_iter().enumerate() {
+            let a = deg.to_radians();
+            let eye = [4.0 * a.cos(), 4.0 * a.sin(), 0.5];
+            let camera = Camera::new(
+                Intrinsics::from_fov_x(0.6, w, h),
+                Pose::look_at(eye, [0.0; 3], [0.0, 0.0, 1.0]),
+            );
+            let centre = if k == 2 { moved } else { [0.0; 3] };
+            let alpha: Vec<f32> = (0..w * h)
+                .map(|p| {
+                    let d = camera.pixel_direction(p % w, p / w);
+                    let o: Vec<f64> = (0..3).map(|i| eye[i] - centre[i]).collect();
+                    let (dd, od) = (
+                        d.iter().map(|x| x * x).sum::<f64>(),
+                        d.iter().zip(&o).map(|(a, b)| a * b).sum::<f64>(),
+                    );
+                    let oo = o.iter().map(|x| x * x).sum::<f64>();
+                    f32::from(od * od - dd * (oo - radius * radius) > 0.0)
+                })
+                .collect();
+            let mut image = nerf_data::Image::new(w, h, 3);
+            image.data.fill(1.0);
+            ds.views.push(nerf_data::View {
+                name: format!("r_{k}"),
+                image,
+                alpha: Some(alpha),
+                camera,
+                time: Some(k as f32 / 2.0),
+            });
+        }
+        ds.train = vec![0, 1, 2];
+        ds
+    }
+
+    #[test]
+    fn a_mover_keeps_its_cells_where_a_still_scene_would_lose_them() {
+        let moved = [0.0, 0.9, 0.0];
+        let ds = ball_video(moved);
+        let grid = || {
+            OccupancyGrid::new(
+                OccupancyConfig {
+                    resolution: 32,
+                    ..Default::default()
+                },
+                ds.aabb,
+            )
+        };
+        let occupied = |g: &OccupancyGrid, p: [f64; 3]| g.is_occupied(p.map(|v| v as f32));
+        let (ball, mover, empty, unseen) = ([0.0; 3], moved, [0.0, -0.9, 0.0], [1.4, 0.0, 1.4]);
+
+        let mut still = grid();
+        let f = carve_visual_hull(&mut still, &ds, &ds.train, HullRule::AtLeast(2));
+        assert!(f > 0.0);
+        assert!(occupied(&still, ball), "seen in front of the ball by every view");
+        assert!(
+            !occupied(&still, mover),
+            "background in views 0 and 1: gone, mover or not"
+        );
+        assert!(!occupied(&still, empty));
+        assert!(occupied(&still, unseen), "no view says anything of it");
+
+        let mut moving = grid();
+        carve_visual_hull(
+            &mut moving,
+            &ds,
+            &ds.train,
+            HullRule::NoForeground { min_background: 2 },
+        );
+        assert!(
+            occupied(&moving, ball) && occupied(&moving, mover),
+            "view 2 sees the ball there"
+        );
+        assert!(!occupied(&moving, empty) && occupied(&moving, unseen));
+
+        let mut unseen_too = grid();
+        carve_visual_hull(
+            &mut unseen_too,
+            &ds,
+            &ds.train,
+            HullRule::NoForeground { min_background: 0 },
+        );
+        assert!(occupied(&unseen_too, ball) && occupied(&unseen_too, mover));
+        assert!(!occupied(&unseen_too, empty) && !occupied(&unseen_too, unseen));
     }
 
     #[test]

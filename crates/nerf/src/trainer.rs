@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use burn::module::Module;
 use burn::tensor::{Device, Tensor};
 use nerf_core::metrics::psnr_from_mse;
+use nerf_core::occupancy::HullRule;
 use nerf_core::profile::span;
 use nerf_core::render::Background;
 use nerf_data::{Dataset, RayBatch};
@@ -82,7 +83,8 @@ impl<F: FieldModule> Trainer<F> {
         std::fs::create_dir_all(run_dir).map_err(|e| nerf_data::DataError::io(run_dir, e))?;
         let mut model = StaticModel::with_field(&cfg, scene_bounds(&dataset), &device, build);
         if let Some(grid) = model.occupancy.as_mut() {
-            let carved = nerf_core::occupancy::carve_visual_hull(grid, &dataset, &dataset.train);
+            let carved =
+                nerf_core::occupancy::carve_visual_hull(grid, &dataset, &dataset.train, HullRule::AtLeast(2));
             if carved > 0.0 {
                 eprintln!(
                     "occupancy grid: {:.1}% of the box carved away by the training silhouettes",

@@ -305,6 +305,13 @@ pub struct NsffConfig {
     /// τ of `masked_static`'s weight, in units of the unmasked rays' mean squared error.
     #[serde(default = "default_masked_static_scale")]
     pub masked_static_scale: f32,
+    /// Empties the occupancy-grid cells that no training frame sees (nor sees anything but
+    /// background through) before training, for videos with a background (RGBA or a known
+    /// colour): nothing was observed there, and whatever the fields put there shows as floaters
+    /// from other viewpoints ([`nerf_core::occupancy::HullRule::NoForeground`]). False: what
+    /// checkpoints from before it read.
+    #[serde(default)]
+    pub carve_unseen: bool,
     /// Whether the learning rate's decay, like the decaying weights', counts from the end of the
     /// static warm-up (the rate stays at `lr` during it). Without it the dynamic field starts at
     /// the rate of 30 % into the run. Checkpoints from before it read false.
@@ -616,6 +623,7 @@ impl NsffConfig {
             static_random_background: false,
             masked_static_after_warm_up: false,
             lr_decay_after_warm_up: true,
+            carve_unseen: false,
             sparsity_points: VIDEO_SPARSITY_POINTS,
             error_rays: 0.0,
             time_jitter: 0.0,
