@@ -259,10 +259,13 @@ pub fn load(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
             format!("no training views left (holdout {holdout} takes every frame)"),
         ));
     }
-    if format == Format::DNerf && dir.join("disp").is_dir() {
-        // Monocular disparity for a D-NeRF video, `disp/<split>/<stem>.npy` (the view's name).
+    let (disp, masks) = (dir.join("disp"), dir.join("motion_masks"));
+    if format == Format::DNerf && (disp.is_dir() || masks.is_dir()) {
+        // A D-NeRF video's priors: monocular disparity `disp/<split>/<stem>.npy` and motion
+        // masks `motion_masks/<split>/<stem>.png` (the view's name).
         dataset.priors = Some(VideoPriors {
-            disparity: crate::video::read_disparities(&dir.join("disp"), &dataset.views)?,
+            disparity: crate::video::read_disparities(&disp, &dataset.views)?,
+            motion_masks: crate::video::read_motion_masks(&masks, &dataset.views)?,
             ..VideoPriors::default()
         });
     }

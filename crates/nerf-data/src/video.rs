@@ -84,15 +84,7 @@ fn read_priors(dir: &Path, ds: &Dataset) -> Result<Option<VideoPriors>> {
         .into_par_iter()
         .map(|i| if i > 0 { flow(i, "bwd") } else { Ok(None) })
         .collect::<Result<Vec<_>>>()?;
-    let motion_masks = ds
-        .views
-        .par_iter()
-        .map(|v| {
-            optional(&mask_dir.join(format!("{}.png", v.name)))
-                .map(|p| read_mask(&p, w, h))
-                .transpose()
-        })
-        .collect::<Result<Vec<_>>>()?;
+    let motion_masks = read_motion_masks(&mask_dir, &ds.views)?;
     Ok(Some(VideoPriors {
         disparity,
         flow_fwd,
@@ -107,12 +99,31 @@ pub(crate) fn read_disparities(
     disp_dir: &Path,
     views: &[crate::dataset::View],
 ) -> Result<Vec<Option<Vec<f32>>>> {
+    read_per_view(disp_dir, "npy", views, read_disparity)
+}
+
+/// `motion_masks/<view name>.png` for every view that has one (`None` for the others), each
+/// checked against its own view's size.
+pub(crate) fn read_motion_masks(
+    mask_dir: &Path,
+    views: &[crate::dataset::View],
+) -> Result<Vec<Option<Vec<f32>>>> {
+    read_per_view(mask_dir, "png", views, read_mask)
+}
+
+/// `dir/<view name>.<ext>` read by `read(path, width, height)` for every view that has one.
+fn read_per_view(
+    dir: &Path,
+    ext: &str,
+    views: &[crate::dataset::View],
+    read: fn(&Path, usize, usize) -> Result<Vec<f32>>,
+) -> Result<Vec<Option<Vec<f32>>>> {
     views
         .par_iter()
         .map(|v| {
-            let path = disp_dir.join(format!("{}.npy", v.name));
+            let path = dir.join(format!("{}.{ext}", v.name));
             path.is_file()
-                .then(|| read_disparity(&path, v.image.width as usize, v.image.height as usize))
+                .then(|| read(&path, v.image.width as usize, v.image.height as usize))
                 .transpose()
         })
         .collect()

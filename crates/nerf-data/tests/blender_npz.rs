@@ -234,6 +234,43 @@ fn single_transforms_json_and_dnerf_times() {
     assert!((ds.views[1].time.unwrap() - 1.0 / 3.0).abs() < 1e-7);
 }
 
+/// A D-NeRF video's motion masks, `motion_masks/<view name>.png`, are read per view (first
+/// channel, 255 = 1); one of the wrong size is refused, naming the file.
+#[test]
+fn dnerf_motion_masks_are_read_per_view() {
+    let dir = TempDir::new("dnerf-masks");
+    let mut frames = Vec::new();
+    for i in 0..3 {
+        write_png(&dir, &format!("images/f{i}.png"), 4, 4);
+        frames.push(frame(
+            &format!("images/f{i}.png"),
+            &format!(r#", "time": {}"#, i as f64 / 2.0),
+        ));
+    }
+    dir.write("transforms.json", transforms(&frames).as_bytes());
+    let mut mask = Image::new(4, 4, 1);
+    mask.data[5] = 1.0;
+    mask.save_png(&dir.path().join("motion_masks/images/f1.png"))
+        .unwrap();
+    let ds = blender::load(dir.path(), &LoadOptions::default()).unwrap();
+    let masks = &ds.priors.as_ref().expect("priors with the masks").motion_masks;
+    assert!(masks[0].is_none() && masks[2].is_none());
+    let m = masks[1].as_ref().expect("frame 1's mask");
+    assert_eq!(m.iter().filter(|&&v| v > 0.5).count(), 1);
+    assert_eq!(m[5], 1.0);
+
+    Image::new(3, 4, 1)
+        .save_png(&dir.path().join("motion_masks/images/f2.png"))
+        .unwrap();
+    assert_mentions(
+        &load_err(dir.path()),
+        &[
+            "motion_masks/images/f2.png",
+            "motion mask is 4x3 but frames are 4x4",
+        ],
+    );
+}
+
 #[test]
 fn bad_blender_inputs_name_the_file_and_the_problem() {
     let missing = std::env::temp_dir().join("nerf-data-no-such-scene-folder");

@@ -38,6 +38,9 @@ pub fn generate(cfg: &SynthConfig, out_dir: &Path) -> Result<GenerateSummary> {
     if let (Some(errors), true) = (cfg.mono_disparity, cfg.preset.is_video()) {
         summary.files_written += scene.write_mono_disparity(out_dir, cfg.seed, errors)?;
     }
+    if cfg.motion_masks && cfg.preset.is_video() {
+        summary.files_written += scene.write_motion_masks(out_dir)?;
+    }
     Ok(summary)
 }
 
@@ -71,6 +74,24 @@ struct FrameJson {
 fn write_f32_npy(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
     let wide: Vec<f64> = data.iter().map(|&v| v as f64).collect();
     write_atomic(path, &nerf_data::npy::encode_npy(shape, &wide, true))
+}
+
+/// Pixels (4-neighbour steps) by which [`Scene::write_motion_masks`] grows the movers'
+/// silhouettes, as NSFF dilates its masks: a segmentation's edge is not exact.
+pub const MOTION_MASK_GROWTH: usize = 2;
+
+/// `mask` (`[H*W]`, `w` wide) grown by one pixel towards its 4 neighbours.
+fn grow(mask: &[bool], w: usize, h: usize) -> Vec<bool> {
+    (0..mask.len())
+        .map(|p| {
+            let (x, y) = (p % w, p / w);
+            mask[p]
+                || (x > 0 && mask[p - 1])
+                || (x + 1 < w && mask[p + 1])
+                || (y > 0 && mask[p - w])
+                || (y + 1 < h && mask[p + w])
+        })
+        .collect()
 }
 
 fn gt_path(out_dir: &Path, view: &SynthView, suffix: &str) -> PathBuf {
@@ -186,6 +207,40 @@ impl Scene {
                     .join(view.split.as_str())
                     .join(format!("{}.npy", view.name));
                 write_f32_npy(&path, &[h, w], &disp)?;
+                Ok(1)
+            })
+            .collect::<Result<_>>()?;
+        Ok(written.iter().sum())
+    }
+
+    /// Per training frame, `motion_masks/train/<name>.png`: white on the moving objects at the
+    /// frame's time (the pixel-centre ray's object), grown by [`MOTION_MASK_GROWTH`] pixels (4-
+    /// neighbour steps), black elsewhere. What a segmentation network that knows which objects
+    /// move would give; NSFF's own masks come from one (Mask R-CNN). Returns the files written.
+    pub fn write_motion_masks(&self, out_dir: &Path) -> Result<usize> {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let movers = self.moving_objects();
+        let train: Vec<&SynthView> = self.views_in(Split::Train).collect();
+        let written: Vec<usize> = train
+            .par_iter()
+            .map(|view| {
+                let ids = self.render(&self.camera(view), view.time).object_id;
+                let mut mask: Vec<bool> = ids
+                    .iter()
+                    .map(|&i| usize::try_from(i).is_ok_and(|i| movers.contains(&i)))
+                    .collect();
+                for _ in 0..MOTION_MASK_GROWTH {
+                    mask = grow(&mask, w, h);
+                }
+                let mut img = nerf_data::Image::new(self.width, self.height, 1);
+                for (v, &m) in img.data.iter_mut().zip(&mask) {
+                    *v = if m { 1.0 } else { 0.0 };
+                }
+                let path = out_dir
+                    .join("motion_masks")
+                    .join(view.split.as_str())
+                    .join(format!("{}.png", view.name));
+                img.save_png(&path)?;
                 Ok(1)
             })
             .collect::<Result<_>>()?;

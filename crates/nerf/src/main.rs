@@ -86,6 +86,11 @@ enum Command {
         /// across the image), as a real monocular network makes.
         #[arg(long, num_args = 0..=1, default_missing_value = "clean", value_name = "clean|rough")]
         mono_disparity: Option<nerf_synth::DisparityErrors>,
+        /// Video presets: also write motion_masks/ with the moving objects' pixels per training
+        /// frame (grown by 2 px), as NSFF's segmentation masks; `nsff train` then uses them in
+        /// place of the masks it computes from the optical flow.
+        #[arg(long)]
+        motion_masks: bool,
     },
 }
 
@@ -237,9 +242,11 @@ fn run(cli: Cli) -> Result<()> {
             frames,
             test_views,
             mono_disparity,
+            motion_masks,
         } => {
             let mut cfg = nerf_synth::SynthConfig::seeded(preset, seed);
             cfg.mono_disparity = mono_disparity;
+            cfg.motion_masks = motion_masks;
             if let Some(s) = size {
                 cfg = cfg.with_size(s[0], s[1]);
             }

@@ -997,8 +997,13 @@ impl NsffTrainer {
         let motion = match v.moving_fraction {
             None => String::new(),
             Some(f) => format!(
-                "; independent motion in {:.2}% of flow pixels (motion masks: {:.1}%)",
+                "; independent motion in {:.2}% of flow pixels (motion masks{}: {:.1}%)",
                 100.0 * f,
+                if v.masks_given {
+                    ", given with the video"
+                } else {
+                    ""
+                },
                 100.0 * v.mask_fraction()
             ),
         };

@@ -28,11 +28,14 @@ pub struct Video {
     pub moving_fraction: Option<f32>,
     pub has_motion: bool,
     /// Per frame, its motion mask (`[H*W]` row-major, true = probably moving; the static batch
-    /// draws from outside it).
+    /// draws from outside it): the masks given with the video, or else the flow test's.
     pub motion_masks: Vec<Vec<bool>>,
     /// Per frame, the pixels the flow test marks as moving (what hard mining draws from): the
     /// motion mask's, and with `unmask_background` the background pixels it left out.
     pub moving_pixels: Vec<Vec<u32>>,
+    /// Whether the masks were given with the video (`motion_masks/`) rather than computed from
+    /// the flow.
+    pub masks_given: bool,
 }
 
 impl Video {
@@ -177,11 +180,15 @@ pub fn prepare(
     }
     let stride = nerf_flow::motion_stride(n);
     let report = nerf_flow::independent_motion(&cameras, &flow_fwd, motion_threshold_px, stride);
-    let mut motion_masks: Vec<Vec<bool>> =
-        nerf_flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, masks, stride)
+    let given_masks = given_motion_masks(&dataset, &frames, &given)?;
+    let masks_given = given_masks.is_some();
+    let mut motion_masks: Vec<Vec<bool>> = match given_masks {
+        Some(m) => m,
+        None => nerf_flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, masks, stride)
             .into_iter()
             .map(|m| m.into_iter().map(|v| v > 0.5).collect())
-            .collect();
+            .collect(),
+    };
     // Hard mining keeps the background pixels the flow test marks (taken before they are
     // unmasked): along a mover's silhouette they teach the dynamic field where the mover ends.
     let moving_pixels = motion_masks
@@ -195,6 +202,9 @@ pub fn prepare(
             }
         }
     }
+    // Masks given with the video that mark anything say that something moves.
+    let has_motion =
+        report.has_independent_motion || (masks_given && motion_masks.iter().flatten().any(|&m| m));
     Ok(Video {
         motion_masks,
         moving_pixels,
@@ -206,8 +216,44 @@ pub fn prepare(
         disparity,
         camera_path,
         moving_fraction: Some(report.moving_fraction),
-        has_motion: report.has_independent_motion,
+        has_motion,
+        masks_given,
     })
+}
+
+/// The motion masks given with the video (`motion_masks/<view name>.png`, NSFF's input, e.g.
+/// from a segmentation network), one per training frame in time order; `None` when none are
+/// given. Given for some frames only is an error: half the video would be masked by another rule.
+fn given_motion_masks(
+    dataset: &Dataset,
+    frames: &[usize],
+    given: &nerf_data::VideoPriors,
+) -> Result<Option<Vec<Vec<bool>>>> {
+    let masks: Vec<Option<&Vec<f32>>> = frames
+        .iter()
+        .map(|&f| given.motion_masks.get(f).and_then(|m| m.as_ref()))
+        .collect();
+    let count = masks.iter().filter(|m| m.is_some()).count();
+    if count == 0 {
+        return Ok(None);
+    }
+    if let Some(k) = masks.iter().position(|m| m.is_none()) {
+        let name = &dataset.views[frames[k]].name;
+        return Err(DataError::invalid(
+            dataset.source.join("motion_masks").join(format!("{name}.png")),
+            format!(
+                "motion masks are given for {count} of the {} training frames but not for frame {k} ({name}); give one per training frame or none",
+                frames.len()
+            ),
+        ));
+    }
+    Ok(Some(
+        masks
+            .into_iter()
+            .flatten()
+            .map(|m| m.iter().map(|&v| v > 0.5).collect())
+            .collect(),
+    ))
 }
 
 /// A jumping camera's video: no flows or motion masks (neighbouring frames are unrelated views),
@@ -231,6 +277,7 @@ fn jumping(
         camera_path,
         moving_fraction: None,
         has_motion: true,
+        masks_given: false,
         dataset,
         frames,
         times,
@@ -246,6 +293,63 @@ mod tests {
         let mut mask = vec![true, true, true, false];
         unmask_background(&mut mask, &[0.0, 0.5, 1.0, 0.0]);
         assert_eq!(mask, vec![false, true, true, false]);
+    }
+
+    /// Masks given with a video (`nerf synth --motion-masks`) are the ones training uses, hard
+    /// mining included: every mover pixel (the generator's object ids) inside, every masked pixel
+    /// within 2 steps of one. Given for some frames only, they are refused, naming the missing file.
+    #[test]
+    fn given_motion_masks_replace_the_flow_test_s() {
+        let dir = std::env::temp_dir().join(format!("nsff-given-masks-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut synth = nerf_synth::SynthConfig::new(nerf_synth::Preset::Dynamic)
+            .with_size(32, 24)
+            .with_views(6, 2);
+        synth.motion_masks = true;
+        let data = dir.join("video");
+        nerf_synth::generate(&synth, &data).unwrap();
+        let scene = nerf_synth::Scene::load(&data).unwrap();
+        let movers = scene.moving_objects();
+        let rule = nerf_flow::MaskRule::either(0.35);
+        let load = || nerf_data::load::load_video(&data, &nerf_data::LoadOptions::default()).unwrap();
+        let video = prepare(load(), &dir.join("cache"), 1.0, rule, false, true).unwrap();
+        assert!(video.masks_given && video.has_motion);
+        let (w, h) = (32usize, 24usize);
+        let mut mover_pixels = 0;
+        for (k, &f) in video.frames.iter().enumerate() {
+            let view = &video.dataset.views[f];
+            let ids = scene
+                .render(&view.camera, f64::from(view.time.unwrap()))
+                .object_id;
+            let on_mover = |p: usize| usize::try_from(ids[p]).is_ok_and(|i| movers.contains(&i));
+            let mask = &video.motion_masks[k];
+            for p in 0..w * h {
+                let (x, y) = ((p % w) as i64, (p / w) as i64);
+                let near_mover = (0..w * h)
+                    .filter(|&q| on_mover(q))
+                    .any(|q| ((q % w) as i64 - x).abs() + ((q / w) as i64 - y).abs() <= 2);
+                if on_mover(p) {
+                    mover_pixels += 1;
+                    assert!(mask[p], "frame {k}: mover pixel {p} outside the given mask");
+                }
+                assert_eq!(mask[p], near_mover, "frame {k}, pixel {p}");
+            }
+            let mined: Vec<u32> = (0..(w * h) as u32).filter(|&p| mask[p as usize]).collect();
+            assert_eq!(
+                video.moving_pixels[k], mined,
+                "hard mining follows the given masks"
+            );
+        }
+        assert!(mover_pixels > 0, "the video has a mover in view");
+
+        let missing = data.join("motion_masks").join("train").join("r_003.png");
+        std::fs::remove_file(&missing).unwrap();
+        let err = match prepare(load(), &dir.join("cache"), 1.0, rule, false, true) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("masks for five of six frames were accepted"),
+        };
+        assert!(err.contains("r_003.png") && err.contains("5 of the 6"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// A run folder reused for another video of the same size computes that video's flows
