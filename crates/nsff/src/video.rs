@@ -30,8 +30,8 @@ pub struct Video {
     /// Per frame, its motion mask (`[H*W]` row-major, true = probably moving; the static batch
     /// draws from outside it): the masks given with the video, or else the flow test's.
     pub motion_masks: Vec<Vec<bool>>,
-    /// Per frame, the pixels the flow test marks as moving (what hard mining draws from): the
-    /// motion mask's, and with `unmask_background` the background pixels it left out.
+    /// Per frame, the pixels marked as moving (what hard mining draws from): the motion mask's
+    /// (given or the flow test's), and with `unmask_background` the background pixels it left out.
     pub moving_pixels: Vec<Vec<u32>>,
     /// Whether the masks were given with the video (`motion_masks/`) rather than computed from
     /// the flow.
