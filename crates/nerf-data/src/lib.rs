@@ -12,6 +12,7 @@ pub mod error;
 pub mod image;
 pub mod llff;
 pub mod load;
+pub mod mask;
 pub mod math;
 pub mod ndc;
 pub mod npy;

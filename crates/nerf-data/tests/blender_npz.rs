@@ -208,18 +208,24 @@ fn per_frame_intrinsics_are_honoured() {
     assert_eq!(ds.views[0].alpha.as_ref().unwrap()[0], 0.5);
 }
 
+/// `n` 4×4 frames `images/f{i}.png` at times i / (n − 1), listed in one `transforms.json`.
+fn write_dnerf_video(dir: &TempDir, n: usize) {
+    let frames: Vec<String> = (0..n)
+        .map(|i| {
+            write_png(dir, &format!("images/f{i}.png"), 4, 4);
+            frame(
+                &format!("images/f{i}.png"),
+                &format!(r#", "time": {}"#, i as f64 / (n - 1) as f64),
+            )
+        })
+        .collect();
+    dir.write("transforms.json", transforms(&frames).as_bytes());
+}
+
 #[test]
 fn single_transforms_json_and_dnerf_times() {
     let dir = TempDir::new("dnerf");
-    let mut frames = Vec::new();
-    for i in 0..4 {
-        write_png(&dir, &format!("images/f{i}.png"), 4, 4);
-        frames.push(frame(
-            &format!("images/f{i}.png"),
-            &format!(r#", "time": {}"#, i as f64 / 3.0),
-        ));
-    }
-    dir.write("transforms.json", transforms(&frames).as_bytes());
+    write_dnerf_video(&dir, 4);
     let ds = blender::load(
         dir.path(),
         &LoadOptions {
@@ -239,15 +245,7 @@ fn single_transforms_json_and_dnerf_times() {
 #[test]
 fn dnerf_motion_masks_are_read_per_view() {
     let dir = TempDir::new("dnerf-masks");
-    let mut frames = Vec::new();
-    for i in 0..3 {
-        write_png(&dir, &format!("images/f{i}.png"), 4, 4);
-        frames.push(frame(
-            &format!("images/f{i}.png"),
-            &format!(r#", "time": {}"#, i as f64 / 2.0),
-        ));
-    }
-    dir.write("transforms.json", transforms(&frames).as_bytes());
+    write_dnerf_video(&dir, 3);
     let mut mask = Image::new(4, 4, 1);
     mask.data[5] = 1.0;
     mask.save_png(&dir.path().join("motion_masks/images/f1.png"))

@@ -22,6 +22,7 @@
 
 use nerf_data::camera::Camera;
 use nerf_data::dataset::FlowField;
+use nerf_data::mask::morph_cross;
 use nerf_data::math::{self, Mat3, Vec3};
 
 /// Below this median rotation-transfer error (pixels) a pair is scored with the transfer error
@@ -162,24 +163,6 @@ pub fn epipolar_errors(flow: &FlowField, cam_a: &Camera, cam_b: &Camera) -> Vec<
                 // p is the epipole itself: every line through it is possible.
                 0.0
             }
-        })
-        .collect()
-}
-
-/// Binary erosion (`erode = true`) or dilation with the 3×3 cross (skimage's `disk(1)`).
-/// Pixels outside the image are ignored, so objects touching the border are not eroded away.
-fn morph_cross(m: &[bool], w: usize, h: usize, erode: bool) -> Vec<bool> {
-    (0..w * h)
-        .map(|i| {
-            let (x, y) = (i % w, i / w);
-            let nb = [
-                (x > 0).then(|| i - 1),
-                (x + 1 < w).then_some(i + 1),
-                (y > 0).then(|| i - w),
-                (y + 1 < h).then_some(i + w),
-            ];
-            let mut it = std::iter::once(i).chain(nb.into_iter().flatten());
-            if erode { it.all(|j| m[j]) } else { it.any(|j| m[j]) }
         })
         .collect()
 }

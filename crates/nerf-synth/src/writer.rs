@@ -80,20 +80,6 @@ fn write_f32_npy(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
 /// silhouettes, as NSFF dilates its masks: a segmentation's edge is not exact.
 pub const MOTION_MASK_GROWTH: usize = 2;
 
-/// `mask` (`[H*W]`, `w` wide) grown by one pixel towards its 4 neighbours.
-fn grow(mask: &[bool], w: usize, h: usize) -> Vec<bool> {
-    (0..mask.len())
-        .map(|p| {
-            let (x, y) = (p % w, p / w);
-            mask[p]
-                || (x > 0 && mask[p - 1])
-                || (x + 1 < w && mask[p + 1])
-                || (y > 0 && mask[p - w])
-                || (y + 1 < h && mask[p + w])
-        })
-        .collect()
-}
-
 fn gt_path(out_dir: &Path, view: &SynthView, suffix: &str) -> PathBuf {
     out_dir
         .join("gt")
@@ -230,7 +216,7 @@ impl Scene {
                     .map(|&i| usize::try_from(i).is_ok_and(|i| movers.contains(&i)))
                     .collect();
                 for _ in 0..MOTION_MASK_GROWTH {
-                    mask = grow(&mask, w, h);
+                    mask = nerf_data::mask::morph_cross(&mask, w, h, false);
                 }
                 let mut img = nerf_data::Image::new(self.width, self.height, 1);
                 for (v, &m) in img.data.iter_mut().zip(&mask) {
