@@ -29,7 +29,7 @@
 //! - with [`SynthConfig::mono_disparity`], video presets: `disp/train/r_000.npy`, a simulated
 //!   monocular disparity (float32 H×W, unknown scale and shift per frame, smoothed and noisy;
 //!   [`DisparityErrors::Rough`] adds errors no scale and shift remove).
-//! - with [`SynthConfig::motion_masks`], video presets: `motion_masks/train/r_000.png`, the moving
+//! - with [`SynthConfig::motion_masks`], presets with a time: `motion_masks/train/r_000.png`, the moving
 //!   objects' pixels grown by 2 (8-bit grey, 255 = moving), as NSFF's segmentation masks.
 
 pub mod disparity;
@@ -144,7 +144,7 @@ pub struct SynthConfig {
     /// Video presets: also write a simulated monocular disparity per training frame with these
     /// errors (`disp/train/r_000.npy`, see [`disparity::simulate`]).
     pub mono_disparity: Option<DisparityErrors>,
-    /// Video presets: also write the moving objects' masks per training frame
+    /// Presets with a time: also write the moving objects' masks per training frame
     /// (`motion_masks/train/r_000.png`, see [`Scene::write_motion_masks`]).
     pub motion_masks: bool,
 }

@@ -38,7 +38,7 @@ pub fn generate(cfg: &SynthConfig, out_dir: &Path) -> Result<GenerateSummary> {
     if let (Some(errors), true) = (cfg.mono_disparity, cfg.preset.is_video()) {
         summary.files_written += scene.write_mono_disparity(out_dir, cfg.seed, errors)?;
     }
-    if cfg.motion_masks && cfg.preset.is_video() {
+    if cfg.motion_masks && cfg.preset.has_time() {
         summary.files_written += scene.write_motion_masks(out_dir)?;
     }
     Ok(summary)

@@ -86,9 +86,9 @@ enum Command {
         /// across the image), as a real monocular network makes.
         #[arg(long, num_args = 0..=1, default_missing_value = "clean", value_name = "clean|rough")]
         mono_disparity: Option<nerf_synth::DisparityErrors>,
-        /// Video presets: also write motion_masks/ with the moving objects' pixels per training
-        /// frame (grown by 2 px), as NSFF's segmentation masks; `nsff train` then uses them in
-        /// place of the masks it computes from the optical flow.
+        /// Presets with a time (videos, jumping cameras): also write motion_masks/ with the moving
+        /// objects' pixels per training frame (grown by 2 px), as NSFF's segmentation masks; `nsff
+        /// train` then uses them on a video in place of the masks it computes from the optical flow.
         #[arg(long)]
         motion_masks: bool,
     },

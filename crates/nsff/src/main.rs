@@ -287,6 +287,12 @@ fn train(args: TrainArgs) -> Result<()> {
                 "note: a jumping camera trains no scene flow; rendering between frames uses --time-interp direct"
             );
         }
+        if video.masks_ignored {
+            eprintln!(
+                "note: the motion masks in {} are not used: a jumping camera trains without motion masks",
+                video.dataset.source.join("motion_masks").display()
+            );
+        }
         let cfg = with_overrides(&cfg, common)?;
         NsffTrainer::new(cfg, video, &run_dir)?
     };

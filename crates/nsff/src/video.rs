@@ -36,6 +36,9 @@ pub struct Video {
     /// Whether the masks were given with the video (`motion_masks/`) rather than computed from
     /// the flow.
     pub masks_given: bool,
+    /// Whether masks were given but are not used: a jumping camera trains without them (its
+    /// settings were screened so).
+    pub masks_ignored: bool,
 }
 
 impl Video {
@@ -148,7 +151,10 @@ pub fn prepare(
         .map(|&f| given.disparity.get(f).cloned().flatten())
         .collect();
     if camera_path.is_jumping() {
-        return Ok(jumping(dataset, frames, times, disparity, camera_path));
+        let masks_ignored = given_motion_masks(&dataset, &frames, &given)?.is_some();
+        let mut video = jumping(dataset, frames, times, disparity, camera_path);
+        video.masks_ignored = masks_ignored;
+        return Ok(video);
     }
     let pick = |v: &Vec<Option<FlowField>>| -> Vec<Option<FlowField>> {
         frames.iter().map(|&f| v.get(f).cloned().flatten()).collect()
@@ -218,6 +224,7 @@ pub fn prepare(
         moving_fraction: Some(report.moving_fraction),
         has_motion,
         masks_given,
+        masks_ignored: false,
     })
 }
 
@@ -278,6 +285,7 @@ fn jumping(
         moving_fraction: None,
         has_motion: true,
         masks_given: false,
+        masks_ignored: false,
         dataset,
         frames,
         times,
@@ -295,6 +303,22 @@ mod tests {
         assert_eq!(mask, vec![false, true, true, false]);
     }
 
+    /// A 6-frame `preset` video of `w`×`h` generated into `data`, with `nerf synth
+    /// --motion-masks`'s masks when `masks`.
+    fn generated(
+        data: &Path,
+        preset: nerf_synth::Preset,
+        (w, h): (u32, u32),
+        masks: bool,
+    ) -> std::path::PathBuf {
+        let mut synth = nerf_synth::SynthConfig::new(preset)
+            .with_size(w, h)
+            .with_views(6, 2);
+        synth.motion_masks = masks;
+        nerf_synth::generate(&synth, data).unwrap();
+        data.to_path_buf()
+    }
+
     /// Masks given with a video (`nerf synth --motion-masks`) are the ones training uses, hard
     /// mining included: every mover pixel (the generator's object ids) inside, every masked pixel
     /// within 2 steps of one. Given for some frames only, they are refused, naming the missing file.
@@ -302,12 +326,7 @@ mod tests {
     fn given_motion_masks_replace_the_flow_test_s() {
         let dir = std::env::temp_dir().join(format!("nsff-given-masks-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        let mut synth = nerf_synth::SynthConfig::new(nerf_synth::Preset::Dynamic)
-            .with_size(32, 24)
-            .with_views(6, 2);
-        synth.motion_masks = true;
-        let data = dir.join("video");
-        nerf_synth::generate(&synth, &data).unwrap();
+        let data = generated(&dir.join("video"), nerf_synth::Preset::Dynamic, (32, 24), true);
         let scene = nerf_synth::Scene::load(&data).unwrap();
         let movers = scene.moving_objects();
         let rule = nerf_flow::MaskRule::either(0.35);
@@ -349,6 +368,29 @@ mod tests {
             Ok(_) => panic!("masks for five of six frames were accepted"),
         };
         assert!(err.contains("r_003.png") && err.contains("5 of the 6"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A jumping camera trains without motion masks (its settings were screened so): masks given
+    /// with one are read, checked and reported as ignored, not used.
+    #[test]
+    fn a_jumping_camera_reports_its_given_masks_as_ignored() {
+        let dir = std::env::temp_dir().join(format!("nsff-jumping-masks-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let rule = nerf_flow::MaskRule::either(0.35);
+        let prepared = |masks: bool| {
+            let data = dir.join(format!("jumping-{masks}"));
+            let data = generated(&data, nerf_synth::Preset::JumpingMovers, (24, 24), masks);
+            assert_eq!(data.join("motion_masks").exists(), masks);
+            let dataset = nerf_data::load::load_video(&data, &nerf_data::LoadOptions::default()).unwrap();
+            prepare(dataset, &dir.join("cache"), 1.0, rule, false, true).unwrap()
+        };
+        let (with, without) = (prepared(true), prepared(false));
+        assert!(with.camera_path.is_jumping());
+        assert!(with.masks_ignored && !with.masks_given);
+        assert!(!without.masks_ignored && !without.masks_given);
+        assert!(with.motion_masks.iter().flatten().all(|&m| !m));
+        assert!(with.moving_pixels.iter().all(Vec::is_empty));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
