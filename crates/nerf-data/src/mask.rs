@@ -19,6 +19,12 @@ pub fn morph_cross(m: &[bool], w: usize, h: usize, erode: bool) -> Vec<bool> {
         .collect()
 }
 
+/// Dilation by `steps` pixels: [`morph_cross`] applied `steps` times (a diamond of radius
+/// `steps`, clipped at the border).
+pub fn grow(m: &[bool], w: usize, h: usize, steps: usize) -> Vec<bool> {
+    (0..steps).fold(m.to_vec(), |m, _| morph_cross(&m, w, h, false))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -34,5 +40,22 @@ mod tests {
         let want: Vec<usize> = vec![1, w, w + 1, w + 2, 2 * w + 1];
         assert_eq!((0..w * h).filter(|&p| grown[p]).collect::<Vec<_>>(), want);
         assert_eq!(morph_cross(&grown, w, h, true), m);
+    }
+
+    /// Growing by two steps reaches every pixel within city-block distance 2 of the seed, and no
+    /// other; zero steps leave the mask as it is.
+    #[test]
+    fn growing_reaches_the_city_block_diamond() {
+        let (w, h) = (7, 6);
+        let mut m = vec![false; w * h];
+        m[2 * w + 3] = true;
+        let grown = grow(&m, w, h, 2);
+        for y in 0..h {
+            for x in 0..w {
+                let d = x.abs_diff(3) + y.abs_diff(2);
+                assert_eq!(grown[y * w + x], d <= 2, "pixel ({x}, {y})");
+            }
+        }
+        assert_eq!(grow(&m, w, h, 0), m);
     }
 }

@@ -22,7 +22,7 @@
 
 use nerf_data::camera::Camera;
 use nerf_data::dataset::FlowField;
-use nerf_data::mask::morph_cross;
+use nerf_data::mask::{grow, morph_cross};
 use nerf_data::math::{self, Mat3, Vec3};
 
 /// Below this median rotation-transfer error (pixels) a pair is scored with the transfer error
@@ -389,11 +389,10 @@ pub fn motion_masks(
                 }
             }
             let moving: Vec<bool> = e.iter().map(|&v| v > rule.threshold_px).collect();
-            let mut m = opening(&moving, w, h);
-            for _ in 0..2 {
-                m = morph_cross(&m, w, h, false);
-            }
-            m.into_iter().map(|b| if b { 1.0 } else { 0.0 }).collect()
+            grow(&opening(&moving, w, h), w, h, 2)
+                .into_iter()
+                .map(|b| if b { 1.0 } else { 0.0 })
+                .collect()
         })
         .collect()
 }

@@ -211,13 +211,11 @@ impl Scene {
             .par_iter()
             .map(|view| {
                 let ids = self.render(&self.camera(view), view.time).object_id;
-                let mut mask: Vec<bool> = ids
+                let movers_here: Vec<bool> = ids
                     .iter()
                     .map(|&i| usize::try_from(i).is_ok_and(|i| movers.contains(&i)))
                     .collect();
-                for _ in 0..MOTION_MASK_GROWTH {
-                    mask = nerf_data::mask::morph_cross(&mask, w, h, false);
-                }
+                let mask = nerf_data::mask::grow(&movers_here, w, h, MOTION_MASK_GROWTH);
                 let mut img = nerf_data::Image::new(self.width, self.height, 1);
                 for (v, &m) in img.data.iter_mut().zip(&mask) {
                     *v = if m { 1.0 } else { 0.0 };

@@ -255,6 +255,11 @@ fn run(cli: Cli) -> Result<()> {
                 cfg = cfg.with_views(f, t);
             }
             cfg.validate().map_err(|m| DataError::invalid(&out, m))?;
+            if motion_masks && !preset.has_time() {
+                eprintln!(
+                    "note: --motion-masks: the {preset} preset has no time and no movers, so no motion masks are written"
+                );
+            }
             let summary = nerf_synth::generate(&cfg, &out)?;
             println!(
                 "wrote {} scene to {}: {} train, {} test views, {} files",

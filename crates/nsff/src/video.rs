@@ -189,7 +189,7 @@ pub fn prepare(
     let given_masks = given_motion_masks(&dataset, &frames, &given)?;
     let masks_given = given_masks.is_some();
     let mut motion_masks: Vec<Vec<bool>> = match given_masks {
-        Some(m) => m,
+        Some(m) => m.iter().map(|m| m.iter().map(|&v| v > 0.5).collect()).collect(),
         None => nerf_flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, masks, stride)
             .into_iter()
             .map(|m| m.into_iter().map(|v| v > 0.5).collect())
@@ -229,13 +229,15 @@ pub fn prepare(
 }
 
 /// The motion masks given with the video (`motion_masks/<view name>.png`, NSFF's input, e.g.
-/// from a segmentation network), one per training frame in time order; `None` when none are
-/// given. Given for some frames only is an error: half the video would be masked by another rule.
-fn given_motion_masks(
+/// from a segmentation network; values in [0, 1], moving above 0.5), one per training frame in
+/// time order; `None` when none are given. Given for some frames only is an error: half the
+/// video would be masked by another rule. Only checked here, not converted: a jumping camera
+/// asks only whether masks are given.
+fn given_motion_masks<'a>(
     dataset: &Dataset,
     frames: &[usize],
-    given: &nerf_data::VideoPriors,
-) -> Result<Option<Vec<Vec<bool>>>> {
+    given: &'a nerf_data::VideoPriors,
+) -> Result<Option<Vec<&'a [f32]>>> {
     let masks: Vec<Option<&Vec<f32>>> = frames
         .iter()
         .map(|&f| given.motion_masks.get(f).and_then(|m| m.as_ref()))
@@ -254,13 +256,7 @@ fn given_motion_masks(
             ),
         ));
     }
-    Ok(Some(
-        masks
-            .into_iter()
-            .flatten()
-            .map(|m| m.iter().map(|&v| v > 0.5).collect())
-            .collect(),
-    ))
+    Ok(Some(masks.into_iter().flatten().map(Vec::as_slice).collect()))
 }
 
 /// A jumping camera's video: no flows or motion masks (neighbouring frames are unrelated views),
