@@ -188,11 +188,12 @@ pub fn prepare(
     let report = nerf_flow::independent_motion(&cameras, &flow_fwd, motion_threshold_px, stride);
     let given_masks = given_motion_masks(&dataset, &frames, &given)?;
     let masks_given = given_masks.is_some();
+    let moving = |m: &[f32]| -> Vec<bool> { m.iter().map(|&v| v > 0.5).collect() };
     let mut motion_masks: Vec<Vec<bool>> = match given_masks {
-        Some(m) => m.iter().map(|m| m.iter().map(|&v| v > 0.5).collect()).collect(),
+        Some(m) => m.into_iter().map(moving).collect(),
         None => nerf_flow::motion_masks(&cameras, &flow_fwd, &flow_bwd, masks, stride)
-            .into_iter()
-            .map(|m| m.into_iter().map(|v| v > 0.5).collect())
+            .iter()
+            .map(|m| moving(m))
             .collect(),
     };
     // Hard mining keeps the background pixels the flow test marks (taken before they are
