@@ -308,8 +308,9 @@ pub struct NsffConfig {
     /// Empties the occupancy-grid cells that no training frame sees (nor sees anything but
     /// background through) before training, for videos with a background (RGBA or a known
     /// colour): nothing was observed there, and whatever the fields put there shows as floaters
-    /// from other viewpoints ([`nerf_core::occupancy::HullRule::NoForeground`]). False: what
-    /// checkpoints from before it read.
+    /// from other viewpoints ([`nerf_core::occupancy::HullRule::NoForeground`]). On for videos
+    /// with given motion masks ([`NsffConfig::adapt_to_given_masks`]); false otherwise and in
+    /// checkpoints from before it.
     #[serde(default)]
     pub carve_unseen: bool,
     /// Whether the learning rate's decay, like the decaying weights', counts from the end of the
@@ -742,6 +743,18 @@ impl NsffConfig {
         let splat = self.time_interp == TimeInterp::Splat;
         self.time_interp = TimeInterp::Direct;
         splat
+    }
+
+    /// Settings for a video whose motion masks are given (`motion_masks/`), after
+    /// [`NsffConfig::adapt_to`]: the cells no training frame sees are carved (`carve_unseen`).
+    /// With given masks the static field explains more of the frame, and over seeds it left
+    /// white fog in that space on some runs (fam14 at two seeds of six, 4.75 dB behind NeRF off
+    /// the path at one). On the seven tuning videos with masks the carve gained 0.44 dB off the
+    /// path (fam17 2.66, none below −0.24; BENCHMARKS.md §6, seventy-first session). Videos
+    /// without masks keep the default: there it was level, and it bets on white where the unseen
+    /// space holds a surface.
+    pub fn adapt_to_given_masks(&mut self) {
+        self.carve_unseen = true;
     }
 
     /// Settings that cannot work together, as a message (after `--set` overrides).

@@ -287,6 +287,9 @@ fn train(args: TrainArgs) -> Result<()> {
                 "note: a jumping camera trains no scene flow; rendering between frames uses --time-interp direct"
             );
         }
+        if video.masks_given {
+            cfg.adapt_to_given_masks();
+        }
         if video.masks_ignored {
             eprintln!(
                 "note: the motion masks in {} are not used: a jumping camera trains without motion masks",

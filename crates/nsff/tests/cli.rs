@@ -179,6 +179,53 @@ fn train_eval_and_render_cameras_agree() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// Motion masks given with a video turn on the carve of the space no training frame sees
+/// (`carve_unseen`, as the checkpoint records it); `--set carve_unseen=false` still wins, and
+/// the same video without masks trains without the carve.
+#[test]
+fn given_masks_carve_the_unseen_space() {
+    let dir = temp("masks");
+    let data = dir.join("dynamic");
+    let mut cfg = SynthConfig::new(Preset::Dynamic)
+        .with_size(32, 24)
+        .with_views(6, 4);
+    cfg.motion_masks = true;
+    nerf_synth::generate(&cfg, &data).unwrap();
+    let carve_of = |run_dir: &Path| -> bool {
+        let state = std::fs::read(run_dir.join("checkpoint.bin")).unwrap();
+        let text = String::from_utf8_lossy(&state);
+        let on = text.contains("\"carve_unseen\": true");
+        assert!(
+            on || text.contains("\"carve_unseen\": false"),
+            "no carve_unseen recorded"
+        );
+        on
+    };
+    let masked = dir.join("masked");
+    let stderr = train_briefly(&data, &masked, 1);
+    assert!(stderr.contains("given with the video"), "{stderr}");
+    assert!(stderr.contains("NoForeground"), "{stderr}");
+    assert!(carve_of(&masked));
+
+    let kept = dir.join("kept");
+    let out = run(nsff().arg("train").arg(&data).arg("--out").arg(&kept).args([
+        "--steps",
+        "1",
+        "--no-render",
+        "--set",
+        "carve_unseen=false",
+    ]));
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("NoForeground"));
+    assert!(!carve_of(&kept));
+
+    std::fs::remove_dir_all(data.join("motion_masks")).unwrap();
+    let unmasked = dir.join("unmasked");
+    let stderr = train_briefly(&data, &unmasked, 1);
+    assert!(!stderr.contains("given with the video"), "{stderr}");
+    assert!(!carve_of(&unmasked));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 #[test]
 fn static_video_switches_the_dynamic_field_off() {
     let dir = temp("static");
