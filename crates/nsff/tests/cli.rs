@@ -21,21 +21,38 @@ fn temp(name: &str) -> PathBuf {
 /// A video from our generator (`preset`: dynamic or static_video), `w`×`h`, `frames` frames,
 /// 4 held-out (camera, time) pairs, with a simulated monocular disparity (`disp/`), so training
 /// runs the depth prior too.
-fn video(dir: &Path, preset: Preset, (w, h): (u32, u32), frames: usize) -> PathBuf {
-    let data = dir.join(preset.as_str());
+fn video(dir: &Path, preset: Preset, size: (u32, u32), frames: usize) -> PathBuf {
+    generate(dir, &video_config(preset, size, frames))
+}
+
+/// [`video`]'s settings, for a test that changes one before generating.
+fn video_config(preset: Preset, (w, h): (u32, u32), frames: usize) -> SynthConfig {
     let mut cfg = SynthConfig::new(preset).with_size(w, h).with_views(frames, 4);
     cfg.mono_disparity = Some(nerf_synth::DisparityErrors::Clean);
-    nerf_synth::generate(&cfg, &data).unwrap();
+    cfg
+}
+
+/// The video `cfg` describes, in `dir/<preset>`.
+fn generate(dir: &Path, cfg: &SynthConfig) -> PathBuf {
+    let data = dir.join(cfg.preset.as_str());
+    nerf_synth::generate(cfg, &data).unwrap();
     data
 }
 
 /// `nsff train DATA --out RUN_DIR --steps STEPS --no-render`; its stderr.
 fn train_briefly(data: &Path, run_dir: &Path, steps: usize) -> String {
-    let out = run(nsff().arg("train").arg(data).arg("--out").arg(run_dir).args([
-        "--steps",
-        &steps.to_string(),
-        "--no-render",
-    ]));
+    train_briefly_with(data, run_dir, steps, &[])
+}
+
+/// [`train_briefly`] with `extra` arguments after its own (`--set` overrides).
+fn train_briefly_with(data: &Path, run_dir: &Path, steps: usize, extra: &[&str]) -> String {
+    let out = run(nsff()
+        .arg("train")
+        .arg(data)
+        .arg("--out")
+        .arg(run_dir)
+        .args(["--steps", &steps.to_string(), "--no-render"])
+        .args(extra));
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
@@ -56,13 +73,12 @@ fn train_eval_and_render_cameras_agree() {
     assert!(stderr.contains("camera path: smooth video"), "{stderr}");
     // `--set` reaches the preparation too: masks at an unreachable threshold are empty.
     assert!(!stderr.contains("motion masks: 0.0%"), "{stderr}");
-    let no_masks = run(nsff()
-        .arg("train")
-        .arg(&data)
-        .arg("--out")
-        .arg(dir.join("no_masks"))
-        .args(["--steps", "1", "--no-render", "--set", "mask_threshold_px=1000"]));
-    let no_masks = String::from_utf8_lossy(&no_masks.stderr);
+    let no_masks = train_briefly_with(
+        &data,
+        &dir.join("no_masks"),
+        1,
+        &["--set", "mask_threshold_px=1000"],
+    );
     assert!(no_masks.contains("motion masks: 0.0%"), "{no_masks}");
     let after_train = mean_psnr(&out);
     for f in [
@@ -185,12 +201,9 @@ fn train_eval_and_render_cameras_agree() {
 #[test]
 fn given_masks_carve_the_unseen_space() {
     let dir = temp("masks");
-    let data = dir.join("dynamic");
-    let mut cfg = SynthConfig::new(Preset::Dynamic)
-        .with_size(32, 24)
-        .with_views(6, 4);
+    let mut cfg = video_config(Preset::Dynamic, (32, 24), 6);
     cfg.motion_masks = true;
-    nerf_synth::generate(&cfg, &data).unwrap();
+    let data = generate(&dir, &cfg);
     let carve_of = |run_dir: &Path| -> bool {
         let state = std::fs::read(run_dir.join("checkpoint.bin")).unwrap();
         let text = String::from_utf8_lossy(&state);
@@ -208,14 +221,8 @@ fn given_masks_carve_the_unseen_space() {
     assert!(carve_of(&masked));
 
     let kept = dir.join("kept");
-    let out = run(nsff().arg("train").arg(&data).arg("--out").arg(&kept).args([
-        "--steps",
-        "1",
-        "--no-render",
-        "--set",
-        "carve_unseen=false",
-    ]));
-    assert!(!String::from_utf8_lossy(&out.stderr).contains("NoForeground"));
+    let stderr = train_briefly_with(&data, &kept, 1, &["--set", "carve_unseen=false"]);
+    assert!(!stderr.contains("NoForeground"), "{stderr}");
     assert!(!carve_of(&kept));
 
     std::fs::remove_dir_all(data.join("motion_masks")).unwrap();
@@ -261,11 +268,10 @@ fn static_video_switches_the_dynamic_field_off() {
 #[test]
 fn a_jumping_camera_skips_the_flow() {
     let dir = temp("jumping");
-    let data = dir.join("jumping");
     let cfg = SynthConfig::new(Preset::Jumping)
         .with_size(32, 32)
         .with_views(12, 4);
-    nerf_synth::generate(&cfg, &data).unwrap();
+    let data = generate(&dir, &cfg);
     let run_dir = dir.join("run");
     // 100 steps: after 30 no occupancy cell is occupied, and the render check below needs samples.
     let stderr = train_briefly(&data, &run_dir, 100);
