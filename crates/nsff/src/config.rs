@@ -339,6 +339,21 @@ pub struct NsffConfig {
     /// better and keeps it open on the movers.
     #[serde(default = "default_moving_dynamic_until")]
     pub moving_dynamic_until: f64,
+    /// Reopens a blend that shut on the moving rays during `weights.moving_dynamic`'s span:
+    /// when the blend readout on the moving rays averages below this over the span's last
+    /// quarter, the blend heads start again (b ≈ 0.05, see [`crate::field::StaticField::
+    /// reopen_blend`]) and the span starts again. A shut blend's sigmoids pass almost no
+    /// gradient, so it stays shut for most of the run and the static field draws ghosts of the
+    /// movers between frames. 0: off (checkpoints from before it); videos 0.1: over 49 runs
+    /// (sessions 69-71) the two that shut read 0.000 and 0.001 there, the other 47 at least
+    /// 0.60 (BENCHMARKS.md §6, seventy-second session).
+    #[serde(default)]
+    pub reopen_blend_below: f32,
+    /// The share of the space-time phase at which the blend was reopened
+    /// (`reopen_blend_below`); saved, so that a resumed run neither reopens it twice nor
+    /// loses the span that restarted there.
+    #[serde(default)]
+    pub blend_reopened_at: Option<f64>,
     /// Random points per step for the dynamic sparsity term (`weights.sparsity`): 1024 for a
     /// video, 512 for a jumping camera.
     #[serde(default = "default_sparsity_points")]
@@ -491,6 +506,10 @@ const VIDEO_ENTROPY: f64 = 0.0;
 // twenty-ninth sessions).
 const VIDEO_MOVING_DYNAMIC: f64 = 0.01;
 
+// A blend shut on the moving rays reads 0.000-0.001 at the end of the moving term's span, an
+// open one 0.60 or more (49 runs, BENCHMARKS.md §6, seventy-second session).
+const VIDEO_REOPEN_BLEND_BELOW: f32 = 0.1;
+
 // Each sample of the space-time batch holds the same matter as the point its scene flow moves
 // it to at the warped neighbour's time (`LossWeights::field_consistency`): over the six tuning
 // videos at 600 s, paired runs, mean PSNR +0.18 dB, off the path +0.13, between frames +0.23,
@@ -557,7 +576,8 @@ fn default_decay_fraction() -> f64 {
     0.5
 }
 
-fn default_blend_init_logit() -> f32 {
+/// The blend weight's default initial logit, −3 (b ≈ 0.05).
+pub fn default_blend_init_logit() -> f32 {
     -3.0
 }
 
@@ -634,6 +654,8 @@ impl NsffConfig {
             warm_up_exit_rise: 0.0,
             warm_up_static_occupancy: true,
             moving_dynamic_until: default_moving_dynamic_until(),
+            reopen_blend_below: VIDEO_REOPEN_BLEND_BELOW,
+            blend_reopened_at: None,
             occupancy_time_bins: default_occupancy_time_bins(),
             frames_per_batch: default_frames_per_batch(),
             warp_neighbours: VIDEO_WARP_NEIGHBOURS,

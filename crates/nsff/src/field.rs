@@ -70,6 +70,15 @@ impl StaticField {
         StaticField { inner }
     }
 
+    /// Starts the blend head again: b_s = sigmoid(`logit`) at every point (the head's weights
+    /// zeroed, its bias set), with new parameters, so that the optimiser's moments of the
+    /// shut head do not close it again.
+    pub fn reopen_blend(&mut self, logit: f32) {
+        if let Some(head) = extra_head(&mut self.inner) {
+            set_output(head, 0, logit, true);
+        }
+    }
+
     fn blend(raw: Extras) -> Extras {
         let mut extras = Extras::default();
         extras.push(BLEND, sigmoid(raw.expect(RAW_EXTRA)));
@@ -162,12 +171,8 @@ impl DynamicField {
                 )
             }
         };
-        let head = match &mut inner {
-            BaseField::Fast(f) => f.extra.as_mut(),
-            BaseField::Vanilla(f) => f.extra.as_mut(),
-        };
-        if let Some(head) = head {
-            open_gate(head, device);
+        if let Some(head) = extra_head(&mut inner) {
+            set_output(head, DYNAMIC_EXTRA - 1, GATE_INIT_LOGIT, false);
         }
         let flow = cfg
             .flow_grid()
@@ -191,6 +196,14 @@ impl DynamicField {
                 let out = self.query(FieldQuery::new(positions, dirs).at_time(Some(time)));
                 (out.extras.expect(FLOW_PREV), out.extras.expect(FLOW_NEXT))
             }
+        }
+    }
+
+    /// Opens the time gate again as it starts (g ≈ 0.98 at every point and time: its weights
+    /// zeroed, its bias set), with new head parameters ([`StaticField::reopen_blend`]).
+    pub fn reopen_gate(&mut self) {
+        if let Some(head) = extra_head(&mut self.inner) {
+            set_output(head, DYNAMIC_EXTRA - 1, GATE_INIT_LOGIT, true);
         }
     }
 
@@ -278,16 +291,33 @@ fn gate_only(raw: Extras, learnt: bool) -> Extras {
     extras
 }
 
-/// Sets the time-gate output's bias to [`GATE_INIT_LOGIT`], keeping the others.
-fn open_gate(head: &mut burn::nn::Linear, device: &Device) {
+/// A field's head of extra outputs, where it has one.
+fn extra_head(field: &mut BaseField) -> Option<&mut burn::nn::Linear> {
+    match field {
+        BaseField::Fast(f) => f.extra.as_mut(),
+        BaseField::Vanilla(f) => f.extra.as_mut(),
+    }
+}
+
+/// Sets output `col` of `head` to start at `logit`: its bias, and with `zero_weights` its
+/// weights to 0 (so that it reads `logit` at every input). The other outputs keep theirs. New
+/// leaves: the parameters must not hang off the graph of the old ones.
+fn set_output(head: &mut burn::nn::Linear, col: usize, logit: f32, zero_weights: bool) {
+    let weight = head.weight.val();
+    let (device, n) = (weight.device(), weight.dims()[1]);
     let bias = match &head.bias {
         Some(b) => b.val(),
-        None => Tensor::zeros([DYNAMIC_EXTRA], device),
+        None => Tensor::zeros([n], &device),
     };
-    let gate = Tensor::full([1], GATE_INIT_LOGIT, device);
-    // A new leaf: the parameter must not hang off the graph of the old bias.
-    let bias = Tensor::cat(vec![bias.narrow(0, 0, DYNAMIC_EXTRA - 1), gate], 0).detach();
-    head.bias = Some(burn::module::Param::from_tensor(bias));
+    let (mut keep, mut set) = (vec![1.0f32; n], vec![0.0f32; n]);
+    (keep[col], set[col]) = (0.0, logit);
+    let keep = Tensor::<1>::from_floats(keep.as_slice(), &device);
+    let bias = bias * keep.clone() + Tensor::<1>::from_floats(set.as_slice(), &device);
+    head.bias = Some(burn::module::Param::from_tensor(bias.detach()));
+    if zero_weights {
+        let weight = weight * keep.unsqueeze_dim::<2>(0);
+        head.weight = burn::module::Param::from_tensor(weight.detach());
+    }
 }
 
 /// A `[S, 1]` column holding one time for every sample.
@@ -388,6 +418,47 @@ mod tests {
                 assert_eq!(a, b, "{name}, flow_levels {flow_levels}");
             }
         }
+    }
+
+    /// A reopened blend head reads its logit at every point, and a reopened gate its starting
+    /// logit at every point and time; the dynamic field's other outputs stay as they were.
+    #[test]
+    fn reopened_heads_read_their_starting_logits_everywhere() {
+        let device = Device::flex();
+        let (x, tt, dirs) = probe(64, &device);
+        let cfg = NsffConfig::new(Preset::Fast, "unused".into(), Default::default());
+        let mut st = StaticField::new(&cfg, AABB, &device);
+        let mut dy = field_with_flow(0, &device);
+        // Spread features, so that the heads read a different value at each point.
+        st.host_params()
+            .iter()
+            .chain(&dy.host_params())
+            .for_each(|g| g.spread());
+        let blend = |st: &StaticField| {
+            let q = st.query(FieldQuery::new(x.clone(), &dirs));
+            read_back(q.extras.expect(BLEND), "blend").unwrap()
+        };
+        let query = |dy: &DynamicField| dy.query(FieldQuery::new(x.clone(), &dirs).at_time(Some(tt.clone())));
+        let spread =
+            |v: &[f32]| v.iter().fold(f32::MIN, |a, &b| a.max(b)) - v.iter().fold(f32::MAX, |a, &b| a.min(b));
+        let before = blend(&st);
+        assert!(spread(&before) > 1e-4, "the blend reads one value before");
+        st.reopen_blend(-3.0);
+        let want = 1.0 / (1.0 + 3.0f32.exp());
+        assert!(blend(&st).iter().all(|b| (b - want).abs() < 1e-6));
+        let before = query(&dy);
+        assert!(spread(&read_back(before.extras.expect(GATE), "gate").unwrap()) > 1e-4);
+        dy.reopen_gate();
+        let after = query(&dy);
+        let want = 1.0 / (1.0 + (-GATE_INIT_LOGIT).exp());
+        let gate = read_back(after.extras.expect(GATE), "gate").unwrap();
+        assert!(gate.iter().all(|g| (g - want).abs() < 1e-6), "gate {gate:?}");
+        for name in [FLOW_PREV, FLOW_NEXT, PROB_PREV, PROB_NEXT] {
+            let (a, b) = (before.extras.expect(name), after.extras.expect(name));
+            assert_eq!(read_back(a, name).unwrap(), read_back(b, name).unwrap(), "{name}");
+        }
+        let (a, b) = (before.sigma, after.sigma);
+        assert_eq!(read_back(a, "sigma").unwrap(), read_back(b, "sigma").unwrap());
     }
 
     /// With `time_gate` off the blend is NSFF's b = b_s: the gate reads exactly 1 from full and

@@ -59,6 +59,9 @@ pub struct NsffTrainer {
     /// the dynamic-only render fits better than the combined one: the rays it opens the blend
     /// on (the status line's readout).
     earned_readout: Cell<Option<f32>>,
+    /// Sum and count of the moving rays' blend readouts over the last quarter of the moving
+    /// term's span (`reopen_blend_below`).
+    shut_watch: Cell<(f64, usize)>,
 }
 
 /// How far the blend b = b_s·g opens on a batch's rays inside and outside the motion masks:
@@ -198,6 +201,7 @@ impl NsffTrainer {
             profiling_warm_up: false,
             blend_readout: Cell::new(None),
             earned_readout: Cell::new(None),
+            shut_watch: Cell::new((0.0, 0)),
         })
     }
 
@@ -306,6 +310,7 @@ impl NsffTrainer {
         }
         self.model.fields = self.optim.step(loss, self.lr(), self.model.fields.clone(), &host);
         self.step += 1;
+        self.reopen_blend_if_shut();
         if self.model.occupancy.as_ref().is_some_and(|o| o.due(self.step)) {
             // One random training time of the bin per refreshed point: a cell the moving object
             // crosses stays above the threshold for many refreshes once seen (values decay by
@@ -373,6 +378,45 @@ impl NsffTrainer {
         let progress = self.cfg.base.progress(self.step, self.elapsed);
         let w = self.cfg.static_warm_up.clamp(0.0, 0.99);
         ((progress - w) / (1.0 - w)).max(0.0)
+    }
+
+    /// Whether `weights.moving_dynamic` applies now: its span at the start of the space-time
+    /// phase, and again from where the blend was reopened.
+    fn in_moving_span(&self) -> bool {
+        let (after, until) = (self.after_warm_up(), self.cfg.moving_dynamic_until);
+        after < until || self.cfg.blend_reopened_at.is_some_and(|r| after < r + until)
+    }
+
+    /// Once the moving term's span is over: reopens the blend if its readouts on the moving
+    /// rays over the span's last quarter averaged below `reopen_blend_below` (the blend and
+    /// gate heads start again, and so does the span; `reopen_blend_below`). Once per run.
+    fn reopen_blend_if_shut(&mut self) {
+        let below = self.cfg.reopen_blend_below;
+        if below <= 0.0
+            || self.cfg.weights.moving_dynamic <= 0.0
+            || self.cfg.blend_reopened_at.is_some()
+            || self.after_warm_up() < self.cfg.moving_dynamic_until
+        {
+            return;
+        }
+        let (sum, n) = self.shut_watch.replace((0.0, 0));
+        if n == 0 || sum / n as f64 >= f64::from(below) {
+            return;
+        }
+        // Where a new run's blend starts by default (b ≈ 0.05), whatever this run started at.
+        let logit = crate::config::default_blend_init_logit();
+        self.model.fields.static_field.reopen_blend(logit);
+        if let Some(dynamic) = self.model.fields.dynamic.as_mut() {
+            dynamic.reopen_gate();
+        }
+        let after = self.after_warm_up();
+        self.cfg.blend_reopened_at = Some(after);
+        self.note = Some(format!(
+            "the blend had shut on the moving rays (readout {:.3} over the last quarter of the moving term's span, below {below}): reopened at step {} ({:.0} % of the space-time phase), and the span starts again",
+            sum / n as f64,
+            self.step,
+            100.0 * after,
+        ));
     }
 
     /// Ends the static warm-up now when the occupancy grid, after carving down to its floor,
@@ -551,13 +595,18 @@ impl NsffTrainer {
             let blend =
                 nerf_core::readback::read_back((b_s.clone() * gate.clone()).detach().inner(), "blend")?;
             let moving = batch.per_ray(|k, p| v.motion_masks[k][p as usize]);
-            self.blend_readout
-                .set(Some(blend_readout(&blend, &samples.offsets, &moving)));
+            let readout = blend_readout(&blend, &samples.offsets, &moving);
+            self.blend_readout.set(Some(readout));
+            let (after, until) = (self.after_warm_up(), self.cfg.moving_dynamic_until);
+            if (0.75 * until..until).contains(&after) && moving.contains(&true) {
+                let (sum, n) = self.shut_watch.get();
+                self.shut_watch.set((sum + f64::from(readout.moving), n + 1));
+            }
         }
 
         // Combined render, scored over the uniform and error-map rays, not NSFF's hard-mined
         // ones (they would bias the blend).
-        let moving_share = wts.moving_dynamic > 0.0 && self.after_warm_up() < self.cfg.moving_dynamic_until;
+        let moving_share = wts.moving_dynamic > 0.0 && self.in_moving_span();
         if !moving_share {
             self.earned_readout.set(None);
         }
@@ -1382,6 +1431,61 @@ mod tests {
             &dynamic_without,
             "the term did not reach the dynamic grid",
         );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// Once the moving term's span is over, a blend whose readouts on the moving rays averaged
+    /// below `reopen_blend_below` over the span's last quarter is reopened, once: the blend reads
+    /// b ≈ 0.05 everywhere, the span starts again, a note says so, and training goes on. One
+    /// that read above it is left as it is.
+    #[test]
+    fn a_shut_blend_is_reopened_once_after_the_moving_span() {
+        let (dir, mut t) = space_time_trainer("nsff-reopen", |cfg| {
+            cfg.blend_init_logit = -20.0;
+            cfg.base.steps = 10;
+            cfg.base.time_budget = None;
+            cfg.moving_dynamic_until = 0.5;
+        });
+        assert!(t.cfg.weights.moving_dynamic > 0.0 && t.cfg.reopen_blend_below > 0.0);
+        let blend = |t: &NsffTrainer| {
+            let x = tensor(vec![0.1, -0.2, 0.3, -0.4, 0.2, 0.0], 3, &t.device);
+            let q = t.model.fields.static_field.density(x, None);
+            nerf_core::readback::read_back(q.extras.expect(BLEND), "blend").unwrap()
+        };
+        assert!(blend(&t).iter().all(|&b| b < 1e-6), "the blend starts shut");
+        // An open blend's readouts: left as it is.
+        t.step = 5;
+        t.shut_watch.set((0.9 + 0.7, 2));
+        t.reopen_blend_if_shut();
+        assert_eq!(t.cfg.blend_reopened_at, None);
+        assert!(t.note.is_none() && blend(&t).iter().all(|&b| b < 1e-6));
+        // A shut one, before the span is over: not yet.
+        t.step = 4;
+        t.shut_watch.set((0.001, 1));
+        t.reopen_blend_if_shut();
+        assert_eq!(t.cfg.blend_reopened_at, None);
+        assert_eq!(t.shut_watch.get(), (0.001, 1), "the readouts were dropped");
+        // Over: reopened.
+        t.step = 5;
+        t.reopen_blend_if_shut();
+        assert_eq!(t.cfg.blend_reopened_at, Some(0.5));
+        assert!(t.note.take().is_some_and(|n| n.contains("reopened at step 5")));
+        let want = 1.0 / (1.0 + 3.0f32.exp());
+        assert!(
+            blend(&t).iter().all(|&b| (b - want).abs() < 1e-6),
+            "{:?}",
+            blend(&t)
+        );
+        assert!(t.in_moving_span(), "the span did not start again");
+        t.train_step()
+            .unwrap()
+            .expect("a finite step after the reopening");
+        // Once per run.
+        t.shut_watch.set((0.001, 1));
+        t.step = 10;
+        t.reopen_blend_if_shut();
+        assert_eq!(t.cfg.blend_reopened_at, Some(0.5));
+        assert!(!t.in_moving_span(), "the span went on past its length");
         let _ = std::fs::remove_dir_all(&dir);
     }
 
