@@ -241,6 +241,9 @@ impl NsffTrainer {
             .map_err(|e| ModelError::checkpoint(path, format!("cannot load optimiser state: {e}")))?;
         self.step = state.step;
         self.elapsed = state.elapsed;
+        // A rollback to before a reopening gets the shut heads back, so it may reopen again.
+        self.cfg.blend_reopened_at = state.config.blend_reopened_at;
+        self.shut_watch.set((0.0, 0));
         if state.n_rays > 0 {
             self.n_rays = state.n_rays;
         }
@@ -1437,7 +1440,7 @@ mod tests {
     /// Once the moving term's span is over, a blend whose readouts on the moving rays averaged
     /// below `reopen_blend_below` over the span's last quarter is reopened, once: the blend reads
     /// b ≈ 0.05 everywhere, the span starts again, a note says so, and training goes on. One
-    /// that read above it is left as it is.
+    /// that read above it is left as it is; a rollback to before the reopening undoes it.
     #[test]
     fn a_shut_blend_is_reopened_once_after_the_moving_span() {
         let (dir, mut t) = space_time_trainer("nsff-reopen", |cfg| {
@@ -1453,6 +1456,7 @@ mod tests {
             nerf_core::readback::read_back(q.extras.expect(BLEND), "blend").unwrap()
         };
         assert!(blend(&t).iter().all(|&b| b < 1e-6), "the blend starts shut");
+        t.save().unwrap();
         // An open blend's readouts: left as it is.
         t.step = 5;
         t.shut_watch.set((0.9 + 0.7, 2));
@@ -1486,6 +1490,10 @@ mod tests {
         t.reopen_blend_if_shut();
         assert_eq!(t.cfg.blend_reopened_at, Some(0.5));
         assert!(!t.in_moving_span(), "the span went on past its length");
+        // A rollback to the checkpoint from before the reopening: shut, and not yet reopened.
+        t.rollback().unwrap();
+        assert_eq!(t.cfg.blend_reopened_at, None);
+        assert!(blend(&t).iter().all(|&b| b < 1e-6));
         let _ = std::fs::remove_dir_all(&dir);
     }
 
