@@ -133,7 +133,7 @@ fn train_json(dataset: &Dataset) -> std::path::PathBuf {
 /// the per-frame motion masks, and with `unmask_background` the pixels of RGBA frames whose
 /// alpha is 0 are kept out of them ([`unmask_background`]).
 pub fn prepare(
-    dataset: Dataset,
+    mut dataset: Dataset,
     cache_dir: &Path,
     motion_threshold_px: f32,
     masks: nerf_flow::MaskRule,
@@ -145,10 +145,11 @@ pub fn prepare(
     let cameras: Vec<nerf_data::Camera> = frames.iter().map(|&f| dataset.views[f].camera).collect();
     let depth = 0.5 * (dataset.depth_bounds[0] + dataset.depth_bounds[1]) as f64;
     let camera_path = capture::classify(&cameras, depth);
-    let given = dataset.priors.clone().unwrap_or_default();
+    // Taken, not cloned: from here the video holds the priors it uses, in frame order.
+    let mut given = dataset.priors.take().unwrap_or_default();
     let disparity: Vec<Option<Vec<f32>>> = frames
         .iter()
-        .map(|&f| given.disparity.get(f).cloned().flatten())
+        .map(|&f| given.disparity.get_mut(f).and_then(Option::take))
         .collect();
     if camera_path.is_jumping() {
         let masks_ignored = given_motion_masks(&dataset, &frames, &given)?.is_some();
@@ -156,10 +157,13 @@ pub fn prepare(
         video.masks_ignored = masks_ignored;
         return Ok(video);
     }
-    let pick = |v: &Vec<Option<FlowField>>| -> Vec<Option<FlowField>> {
-        frames.iter().map(|&f| v.get(f).cloned().flatten()).collect()
+    let pick = |v: &mut Vec<Option<FlowField>>| -> Vec<Option<FlowField>> {
+        frames
+            .iter()
+            .map(|&f| v.get_mut(f).and_then(Option::take))
+            .collect()
     };
-    let (mut flow_fwd, mut flow_bwd) = (pick(&given.flow_fwd), pick(&given.flow_bwd));
+    let (mut flow_fwd, mut flow_bwd) = (pick(&mut given.flow_fwd), pick(&mut given.flow_bwd));
     let complete = (0..n).all(|k| (k + 1 == n || flow_fwd[k].is_some()) && (k == 0 || flow_bwd[k].is_some()));
     if !complete {
         let first = &dataset.views[frames[0]].image;
