@@ -127,6 +127,15 @@ fn train_json(dataset: &Dataset) -> std::path::PathBuf {
     }
 }
 
+/// Each frame's entry of a per-view prior, taken out of `v` in frame order; a view the prior
+/// does not reach gives `None`.
+fn take_in_frame_order<T>(v: &mut [Option<T>], frames: &[usize]) -> Vec<Option<T>> {
+    frames
+        .iter()
+        .map(|&f| v.get_mut(f).and_then(Option::take))
+        .collect()
+}
+
 /// Prepares the video: frame order, flows (given, cached or computed), motion decision. A
 /// jumping camera ([`capture::classify`]) gets neither flows nor masks.
 /// Epipolar errors above `motion_threshold_px` count as motion for the decision; `masks` marks
@@ -147,23 +156,15 @@ pub fn prepare(
     let camera_path = capture::classify(&cameras, depth);
     // Taken, not cloned: from here the video holds the priors it uses, in frame order.
     let mut given = dataset.priors.take().unwrap_or_default();
-    let disparity: Vec<Option<Vec<f32>>> = frames
-        .iter()
-        .map(|&f| given.disparity.get_mut(f).and_then(Option::take))
-        .collect();
+    let disparity = take_in_frame_order(&mut given.disparity, &frames);
     if camera_path.is_jumping() {
         let masks_ignored = given_motion_masks(&dataset, &frames, &given)?.is_some();
         let mut video = jumping(dataset, frames, times, disparity, camera_path);
         video.masks_ignored = masks_ignored;
         return Ok(video);
     }
-    let pick = |v: &mut Vec<Option<FlowField>>| -> Vec<Option<FlowField>> {
-        frames
-            .iter()
-            .map(|&f| v.get_mut(f).and_then(Option::take))
-            .collect()
-    };
-    let (mut flow_fwd, mut flow_bwd) = (pick(&mut given.flow_fwd), pick(&mut given.flow_bwd));
+    let mut flow_fwd = take_in_frame_order(&mut given.flow_fwd, &frames);
+    let mut flow_bwd = take_in_frame_order(&mut given.flow_bwd, &frames);
     let complete = (0..n).all(|k| (k + 1 == n || flow_fwd[k].is_some()) && (k == 0 || flow_bwd[k].is_some()));
     if !complete {
         let first = &dataset.views[frames[0]].image;
