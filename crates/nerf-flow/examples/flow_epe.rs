@@ -5,7 +5,8 @@
 //! cargo run -p nerf-flow --release --example flow_epe -- [--preset dynamic] [--seed 0]
 //!     [--method tvl1|hs|lk|all] [--size 128x96] [--frames 24] [--min-size 8]
 //! ```
-//! The crate docs of `nerf_flow` quote its output (`--method all`).
+//! The crate docs of `nerf_flow` quote its output (`--method all`). With `--preset family` a seed
+//! draws its own frame count and size, as in `nerf synth` (`--size` and `--frames` override them).
 
 use std::time::Instant;
 
@@ -87,7 +88,7 @@ fn main() -> Result<(), String> {
         .unwrap_or("0")
         .parse()
         .map_err(|e| format!("--seed: {e}"))?;
-    let mut cfg = SynthConfig::new(preset).with_seed(seed);
+    let mut cfg = SynthConfig::seeded(preset, seed);
     if let Some(size) = arg(&args, "--size") {
         let (w, h) = size
             .split_once('x')

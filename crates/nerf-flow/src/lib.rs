@@ -48,7 +48,13 @@
 //!
 //! Limits: like every coarse-to-fine method it loses small objects that move much further than
 //! their own size between frames (our cube at 512×288 with 6 frames instead of 24, ~50 px per
-//! frame, is not tracked). NSFF's 20-50-frame videos at 512×288 stay well within range.
+//! frame, is not tracked). NSFF's 20-50-frame videos at 512×288 stay well within range. It also
+//! loses a small object whose own motion differs from its surroundings' by a few pixels: on
+//! `--preset family --seed 307` (a box about 25 px across, spinning 251° over 16 frames while
+//! the camera sweeps) the flow on the box is 4.2 px off on average (7.3 px long), 85 % of its
+//! pixels are more than 1 px off, and the forward-backward test keeps 86 % of the box's pixels
+//! with the same share wrong among them: the wrong flow is consistent. No setting of this solver
+//! mends it (BENCHMARKS.md §6, seventy-fifth session).
 //!
 //! # Masks
 //! [`consistency_mask`] is NSFF's forward-backward test. [`video_flows`] multiplies it by
