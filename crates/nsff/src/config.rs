@@ -192,7 +192,9 @@ pub struct NsffConfig {
     #[serde(default = "default_dynamic_width")]
     pub dynamic_width: usize,
     /// Spherical-harmonics degree of the dynamic field's view directions (the static field
-    /// keeps the full degree 4; low-order view dependence is enough for the moving part).
+    /// keeps the full degree 4; 2 was chosen for cost). Degree 1 (colour independent of the
+    /// view) is level with 2 on the seven tuning videos without masks: mean −0.04 dB, off the
+    /// path −0.02 (BENCHMARKS.md §6, seventy-sixth session).
     #[serde(default = "default_dynamic_sh_degree")]
     pub dynamic_sh_degree: usize,
     /// Scene flow is tanh(raw) × flow_scale (scene units per frame; NDC for forward-facing).
