@@ -4,7 +4,8 @@
 Usage: python3 montage.py OUT.png VIEW DATA_DIR:RENDER_A.png:RENDER_B.png [DATA_DIR:... ...]
 
 One row per DATA_DIR (a D-NeRF scene); its ground truth is test frame VIEW of
-transforms_test.json, composited on white and averaged 2x2 as score.py does. The renders must
+transforms_test.json, composited on white and averaged 2x2 as score.py does (not averaged when
+the renders are the ground truth's size, as for generated videos). The renders must
 be RGB(A) PNGs of the same size (e.g. `nsff render RUN --cameras ... --out DIR`, DIR/000V.png).
 """
 
@@ -25,7 +26,9 @@ def main():
         data, *renders = spec.split(":")
         frames = json.load(open(os.path.join(data, "transforms_test.json")))["frames"]
         gt_path = os.path.normpath(os.path.join(data, frames[view]["file_path"] + ".png"))
-        w, h, ours, _ = ground_truth(gt_path, 2)
+        # D-NeRF renders are at half the ground truth's size, generated videos' at full size.
+        factor = max(1, read_png(gt_path)[0] // read_png(renders[0])[0]) if renders else 2
+        w, h, ours, _ = ground_truth(gt_path, factor)
         tiles = [bytes(min(255, max(0, round(v * 255))) for v in ours)]
         for path in renders:
             tw, th, c, px = read_png(path)
