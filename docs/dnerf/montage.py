@@ -16,7 +16,7 @@ import sys
 import zlib
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from score import ground_truth, read_png  # noqa: E402
+from score import ground_truth, png_width, read_png  # noqa: E402
 
 
 def main():
@@ -26,12 +26,12 @@ def main():
         data, *renders = spec.split(":")
         frames = json.load(open(os.path.join(data, "transforms_test.json")))["frames"]
         gt_path = os.path.normpath(os.path.join(data, frames[view]["file_path"] + ".png"))
+        decoded = [(path, *read_png(path)) for path in renders]
         # D-NeRF renders are at half the ground truth's size, generated videos' at full size.
-        factor = max(1, read_png(gt_path)[0] // read_png(renders[0])[0]) if renders else 2
+        factor = max(1, png_width(gt_path) // decoded[0][1]) if decoded else 2
         w, h, ours, _ = ground_truth(gt_path, factor)
         tiles = [bytes(min(255, max(0, round(v * 255))) for v in ours)]
-        for path in renders:
-            tw, th, c, px = read_png(path)
+        for path, tw, th, c, px in decoded:
             if (tw, th) != (w, h):
                 raise ValueError(f"{path} is {tw}x{th}, ground truth {w}x{h}")
             tiles.append(bytes(px[i * c + k] for i in range(w * h) for k in range(3)))

@@ -23,6 +23,15 @@ import sys
 import zlib
 
 
+def png_width(path):
+    """A PNG's width from its IHDR chunk (always first), without decoding the image."""
+    with open(path, "rb") as f:
+        head = f.read(24)
+    if head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        raise ValueError(f"{path}: not a PNG")
+    return struct.unpack(">I", head[16:20])[0]
+
+
 def read_png(path):
     """Returns (width, height, channels, bytes) of an 8-bit RGB or RGBA PNG, not interlaced."""
     with open(path, "rb") as f:
