@@ -291,7 +291,9 @@ pub struct NsffConfig {
     /// colour, as `nerf train` does, instead of the dataset's background: a pixel that sees the
     /// background says its ray is empty at that time, so empty of static matter at every time,
     /// and over white the static field could leave white fog there that shows in front of
-    /// surfaces from other viewpoints. False: what checkpoints from before it read.
+    /// surfaces from other viewpoints. False: what checkpoints from before it read. Opt-in: with
+    /// given motion masks it was level on the seven tuning videos' mean and lost 0.32-0.48 dB
+    /// on two of them (BENCHMARKS.md §6, seventy-eighth session).
     #[serde(default)]
     pub static_random_background: bool,
     /// `masked_static` after the static warm-up only: the warm-up's static field knows nothing
