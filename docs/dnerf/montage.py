@@ -16,7 +16,7 @@ import sys
 import zlib
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from score import ground_truth, png_width, read_png  # noqa: E402
+from score import PNG_SIGNATURE, ground_truth, png_width, read_png  # noqa: E402
 
 
 def main():
@@ -45,9 +45,11 @@ def main():
 
     header = struct.pack(">IIBBBBB", width, len(rows), 8, 2, 0, 0, 0)
     raw = b"".join(b"\x00" + r for r in rows)
-    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")
-    with open(out, "wb") as f:
+    png = PNG_SIGNATURE + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")
+    tmp = out + ".tmp"
+    with open(tmp, "wb") as f:
         f.write(png)
+    os.replace(tmp, out)
     print(f"wrote {out} ({width}x{len(rows)})")
 
 

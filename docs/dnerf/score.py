@@ -22,12 +22,14 @@ import struct
 import sys
 import zlib
 
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
 
 def png_width(path):
     """A PNG's width from its IHDR chunk (always first), without decoding the image."""
     with open(path, "rb") as f:
         head = f.read(24)
-    if head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+    if head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
         raise ValueError(f"{path}: not a PNG")
     return struct.unpack(">I", head[16:20])[0]
 
@@ -36,7 +38,7 @@ def read_png(path):
     """Returns (width, height, channels, bytes) of an 8-bit RGB or RGBA PNG, not interlaced."""
     with open(path, "rb") as f:
         data = f.read()
-    if data[:8] != b"\x89PNG\r\n\x1a\n":
+    if data[:8] != PNG_SIGNATURE:
         raise ValueError(f"{path}: not a PNG")
     pos, idat, header = 8, [], None
     while pos < len(data):
@@ -50,6 +52,8 @@ def read_png(path):
             idat.append(body)
         elif kind == b"IEND":
             break
+    if header is None:
+        raise ValueError(f"{path}: a PNG without its IHDR header chunk")
     width, height, depth, color, _, _, interlace = header
     if depth != 8 or color not in (2, 6) or interlace != 0:
         raise ValueError(f"{path}: only 8-bit RGB/RGBA, non-interlaced (got depth {depth}, colour {color})")
@@ -126,6 +130,8 @@ def main():
         i = args.index("--downscale")
         factor = int(args[i + 1])
         del args[i : i + 2]
+    if len(args) != 2:
+        sys.exit("usage: python3 score.py DATA_DIR RENDER_DIR [--downscale 2]")
     data, renders = args
     frames = json.load(open(os.path.join(data, "transforms_test.json")))["frames"]
     ours_all, dnerf_all = [], []
