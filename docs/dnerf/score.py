@@ -123,15 +123,20 @@ def psnr(render, truth):
     return -10.0 * math.log10(max(mse, 1e-20))
 
 
+USAGE = "usage: python3 score.py DATA_DIR RENDER_DIR [--downscale 2]"
+
+
 def main():
     args = sys.argv[1:]
     factor = 2
     if "--downscale" in args:
         i = args.index("--downscale")
+        if i + 1 >= len(args) or not args[i + 1].isdigit() or int(args[i + 1]) < 1:
+            sys.exit(f"--downscale needs a whole number of at least 1\n{USAGE}")
         factor = int(args[i + 1])
         del args[i : i + 2]
     if len(args) != 2:
-        sys.exit("usage: python3 score.py DATA_DIR RENDER_DIR [--downscale 2]")
+        sys.exit(USAGE)
     data, renders = args
     frames = json.load(open(os.path.join(data, "transforms_test.json")))["frames"]
     ours_all, dnerf_all = [], []
